@@ -1,0 +1,31 @@
+# shoulder-fem: the README's two commands are `make demo` and `make test`.
+SHELL := /bin/bash
+PY    := .venv/bin/python
+# One thread per MPI rank (OpenBLAS with free threads is slower than reference BLAS here);
+# Open MPI as root and with more ranks than cores.
+export OMP_NUM_THREADS := 1
+export OPENBLAS_NUM_THREADS := 1
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+export OMPI_MCA_rmaps_base_oversubscribe := 1
+MPIRUN := mpirun -n 2
+DEMO_OUT ?= results/demo
+LEVEL ?= coarse
+
+.PHONY: setup demo test test-serial test-mpi bench lint clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(PY) -m shoulder_fem.cli demo --level $(LEVEL) --out $(DEMO_OUT)
+
+test: setup
+	$(PY) -m pytest -q tests
+	$(MPIRUN) $(PY) -m mpi4py -m pytest -q -m mpi -p no:cacheprovider tests
+
+bench: setup
+	$(PY) benchmarks/spinning_bar.py --out benchmarks/results
+
+clean:
+	rm -rf results .pytest_cache

@@ -1,0 +1,1 @@
+"""Pure UFL forms: kinematics, materials, virtual-power terms and rigid-body functionals."""

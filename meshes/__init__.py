@@ -1,0 +1,1 @@
+"""gmsh / dolfinx mesh builders, one per scene family."""

@@ -1,0 +1,1 @@
+"""The two pipelines: coupled (method #1) and decoupled (method #2)."""

@@ -1,0 +1,79 @@
+"""Figures (matplotlib, Agg backend): run against run, run against theory, resources."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+_STYLE = {"coupled": dict(color="C0", lw=2.0), "decoupled": dict(color="C3", lw=1.2, ls="--")}
+
+
+def _save(fig, path: Path) -> Path:
+    """Write a figure atomically (temp file + rename), close it."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.png")
+    fig.savefig(tmp, dpi=150, bbox_inches="tight")
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def _label(summary: dict) -> str:
+    return f"{summary.get('method')} ({summary.get('level')})"
+
+
+def plot_series(runs: list[dict], name: str, path: Path, title: str | None = None,
+                reference: tuple[np.ndarray, np.ndarray, str] | None = None) -> Path:
+    """Series ``name`` of several runs on one axis; optional analytic reference curve."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for s in runs:
+        ser = s["series"][name]
+        ax.plot(ser["x"], ser["y"], label=_label(s), **_STYLE.get(s.get("method"), {}))
+    if reference is not None:
+        x, y, label = reference
+        ax.plot(x, y, color="k", lw=0.8, ls=":", label=label)
+    ser = runs[0]["series"][name]
+    ax.set_xlabel(f"{'time' if ser['x_unit'] == 's' else 'x'} [{ser['x_unit']}]")
+    ax.set_ylabel(f"{name.replace('_', ' ')} [{ser['y_unit']}]")
+    ax.set_title(title or f"{runs[0].get('scene')}: {name.replace('_', ' ')}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save(fig, path)
+
+
+def plot_resources(runs: dict[str, dict], path: Path) -> Path:
+    """Bars of CPU time and peak memory per run (the paper's Table II as a chart)."""
+    labels = list(runs)
+    cpu = [runs[k]["resources"]["cpu_s"] for k in labels]
+    mem = [runs[k]["resources"]["peak_rss_mb"] for k in labels]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(7.5, 3.2))
+    a1.bar(labels, cpu, color=["C0", "C3"][: len(labels)])
+    a1.set_ylabel("CPU time [s] (sum over ranks)")
+    a2.bar(labels, mem, color=["C0", "C3"][: len(labels)])
+    a2.set_ylabel("peak memory [MB] (sum over ranks)")
+    for ax in (a1, a2):
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(f"{next(iter(runs.values())).get('scene')}: resources")
+    return _save(fig, path)
+
+
+def plot_cpu_vs_error(points: list[dict], path: Path, title: str) -> Path:
+    """CPU time against error, one marker per run (label, cpu_s, error)."""
+    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    for p in points:
+        marker = "o" if p["method"] == "coupled" else "s"
+        color = "C0" if p["method"] == "coupled" else "C3"
+        ax.loglog(p["cpu_s"], max(p["error"], 1e-16), marker, color=color, ms=7)
+        ax.annotate(p["label"], (p["cpu_s"], max(p["error"], 1e-16)), textcoords="offset points",
+                    xytext=(5, 4), fontsize=8)
+    ax.set_xlabel("CPU time [s] (sum over ranks)")
+    ax.set_ylabel("relative error")
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    return _save(fig, path)

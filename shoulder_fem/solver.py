@@ -1,0 +1,318 @@
+"""PETSc SNES wrapper for dolfinx 0.5.2, time/load stepping with cut-back, linear solver choices.
+
+dolfinx 0.5.2 has no SNES problem class: :class:`NonlinearSolver` assembles the residual and
+the Jacobian of UFL forms in SNES callbacks, applies Dirichlet conditions by lifting, and checks
+the converged reason of every solve (:class:`ConvergenceError` names the step, the reason and the
+iteration count). Each solver owns a unique PETSc options prefix; its options are set under the
+prefix and removed again after ``setFromOptions()`` so that nothing leaks into the global
+options database.
+
+Linear problems (the decoupled method's floating-frame stress) use the same class with
+``linear=True``: SNES ``ksponly``, and the Jacobian is assembled (and factorized) only when the
+caller says the operator changed, so one LU factorization serves every step with the same
+operator.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+
+import dolfinx
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+import ufl
+from petsc4py import PETSc
+
+logger = logging.getLogger(__name__)
+
+_prefix_counter = itertools.count()
+
+class ConvergenceError(RuntimeError):
+    """A nonlinear (or linear) solve did not converge.
+
+    Attributes:
+        step: label of the step that failed (e.g. ``"t=0.0125 s"``).
+        reason: PETSc converged-reason name.
+        iterations: Newton iterations done before giving up.
+        prefix: options prefix of the solver.
+    """
+
+    def __init__(self, step: str, reason: str, iterations: int, prefix: str):
+        super().__init__(
+            f"solver '{prefix}' did not converge at {step}: {reason} after {iterations} "
+            "Newton iteration(s)"
+        )
+        self.step = step
+        self.reason = reason
+        self.iterations = iterations
+        self.prefix = prefix
+
+
+def unique_prefix(name: str) -> str:
+    """Return a PETSc options prefix unique in this process, ending in ``_``."""
+    return f"{name}{next(_prefix_counter)}_"
+
+
+def default_snes_options() -> dict:
+    """Newton with a full step, MUMPS LU: a fresh dict each call."""
+    return {
+        "snes_type": "newtonls",
+        "snes_linesearch_type": "basic",
+        "snes_rtol": 1e-10,
+        "snes_atol": 1e-12,
+        "snes_stol": 0.0,
+        "snes_max_it": 25,
+        "snes_error_if_not_converged": False,
+        **direct_solver_options(),
+    }
+
+
+def direct_solver_options() -> dict:
+    """MUMPS LU (the default linear solver)."""
+    return {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
+
+
+def iterative_solver_options(rtol: float = 1e-10) -> dict:
+    """CG with smoothed-aggregation AMG (GAMG) for large elasticity problems.
+
+    Pair it with :func:`rigid_body_modes` as the matrix's near-nullspace (done by
+    :class:`NonlinearSolver` when ``near_nullspace=True``).
+    """
+    return {
+        "ksp_type": "cg",
+        "ksp_rtol": rtol,
+        "ksp_max_it": 1000,
+        "pc_type": "gamg",
+        "pc_gamg_type": "agg",
+        "pc_gamg_coarse_eq_limit": 1000,
+        "mg_levels_ksp_type": "chebyshev",
+        "mg_levels_pc_type": "jacobi",
+    }
+
+
+def linear_solver_options(kind: str) -> dict:
+    """Options for ``kind`` in {"direct", "iterative"}."""
+    if kind == "direct":
+        return direct_solver_options()
+    if kind == "iterative":
+        return iterative_solver_options()
+    raise ValueError(f"linear solver '{kind}' is not one of: direct, iterative")
+
+
+def rigid_body_modes(V: dolfinx.fem.FunctionSpace) -> PETSc.NullSpace:
+    """The six rigid-body modes of a 3D vector space, orthonormalised (GAMG near-nullspace)."""
+    index_map = V.dofmap.index_map
+    bs = V.dofmap.index_map_bs
+    vectors = [dolfinx.la.create_petsc_vector(index_map, bs) for _ in range(6)]
+    with ExitStack() as stack:
+        local = [np.asarray(stack.enter_context(v.localForm())) for v in vectors]
+        dofs = [V.sub(i).dofmap.list.array for i in range(3)]
+        for i in range(3):
+            local[i][dofs[i]] = 1.0
+        x = V.tabulate_dof_coordinates()
+        blocks = V.dofmap.list.array
+        x0, x1, x2 = x[blocks, 0], x[blocks, 1], x[blocks, 2]
+        local[3][dofs[0]], local[3][dofs[1]] = -x1, x0
+        local[4][dofs[0]], local[4][dofs[2]] = x2, -x0
+        local[5][dofs[2]], local[5][dofs[1]] = x1, -x2
+    dolfinx.la.orthonormalize(vectors)
+    return PETSc.NullSpace().create(vectors=vectors)
+
+
+@dataclass
+class SolveStats:
+    """Counters of one solver (summed over its solves)."""
+
+    solves: int = 0
+    newton_iterations: int = 0
+    linear_solves: int = 0
+    factorizations: int = 0
+    history: list[int] = field(default_factory=list)
+
+
+class NonlinearSolver:
+    """Solve F(u; w) = 0 for ``u`` with PETSc SNES.
+
+    Args:
+        residual: UFL 1-form F(u; w).
+        u: the unknown (its current value is the initial guess; it holds the solution).
+        bcs: Dirichlet conditions; their values are imposed on the solution.
+        jacobian: UFL 2-form; ``ufl.derivative(residual, u)`` if omitted.
+        name: a short name; the options prefix is ``<name><n>_``.
+        options: PETSc options overriding :func:`default_snes_options`.
+        linear: the problem is linear in ``u``: SNES ``ksponly`` and the Jacobian is
+            assembled only on the first solve and after :meth:`operator_changed`.
+        near_nullspace: attach the rigid-body modes (for GAMG).
+        form_compiler_params: passed to ``dolfinx.fem.form`` (e.g. quadrature_degree).
+    """
+
+    def __init__(
+        self,
+        residual: ufl.Form,
+        u: dolfinx.fem.Function,
+        bcs: list | None = None,
+        jacobian: ufl.Form | None = None,
+        name: str = "sfem",
+        options: dict | None = None,
+        linear: bool = False,
+        near_nullspace: bool = False,
+        form_compiler_params: dict | None = None,
+    ):
+        self.u = u
+        self.bcs = list(bcs or [])
+        self.linear = linear
+        comm = u.function_space.mesh.comm
+        if jacobian is None:
+            jacobian = ufl.derivative(residual, u, ufl.TrialFunction(u.function_space))
+        fco = form_compiler_params or {}
+        self._F = dolfinx.fem.form(residual, form_compiler_params=fco)
+        self._J = dolfinx.fem.form(jacobian, form_compiler_params=fco)
+        self._b = fem_petsc.create_vector(self._F)
+        self._A = fem_petsc.create_matrix(self._J)
+        self._x = self._b.duplicate()
+        if near_nullspace:
+            self._A.setNearNullSpace(rigid_body_modes(u.function_space))
+        self._operator_changed = True
+        self.stats = SolveStats()
+        self.prefix = unique_prefix(name)
+
+        opts = default_snes_options()
+        if linear:
+            opts["snes_type"] = "ksponly"
+        opts.update(options or {})
+        self.snes = PETSc.SNES().create(comm)
+        self.snes.setOptionsPrefix(self.prefix)
+        db = PETSc.Options()
+        for key, value in opts.items():
+            db[f"{self.prefix}{key}"] = value
+        self.snes.setFunction(self._residual, self._b)
+        self.snes.setJacobian(self._jacobian, self._A)
+        self.snes.setFromOptions()
+        self.snes.getKSP().setFromOptions()
+        for key in opts:
+            db.delValue(f"{self.prefix}{key}")
+
+    # -- PETSc callbacks -------------------------------------------------------------------
+    def _copy_in(self, x: PETSc.Vec) -> None:
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        x.copy(self.u.vector)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def _residual(self, snes: PETSc.SNES, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        self._copy_in(x)
+        with b.localForm() as b_local:
+            b_local.set(0.0)
+        fem_petsc.assemble_vector(b, self._F)
+        fem_petsc.apply_lifting(b, [self._J], bcs=[self.bcs], x0=[x], scale=-1.0)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        fem_petsc.set_bc(b, self.bcs, x, -1.0)
+
+    def _jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, A: PETSc.Mat, P: PETSc.Mat) -> None:
+        if self.linear and not self._operator_changed:
+            return  # unchanged matrix state: PETSc keeps the factorization
+        self._copy_in(x)
+        A.zeroEntries()
+        fem_petsc.assemble_matrix(A, self._J, bcs=self.bcs)
+        A.assemble()
+        self._operator_changed = False
+        self.stats.factorizations += 1
+
+    # -- public API ------------------------------------------------------------------------
+    def operator_changed(self) -> None:
+        """Tell a ``linear`` solver that its operator changed (next solve re-assembles)."""
+        self._operator_changed = True
+
+    def solve(self, step: str = "") -> int:
+        """Solve from the current ``u``; return the Newton iteration count.
+
+        Raises:
+            ConvergenceError: the SNES did not converge (``u`` then holds the last iterate;
+                callers restore their own state).
+        """
+        self.u.vector.copy(self._x)
+        self.snes.solve(None, self._x)
+        reason = self.snes.getConvergedReason()
+        its = self.snes.getIterationNumber()
+        self.stats.solves += 1
+        self.stats.newton_iterations += its
+        self.stats.linear_solves += max(its, 1) if self.linear else its
+        self.stats.history.append(its)
+        if reason <= 0 or not np.isfinite(self.snes.getFunctionNorm()):
+            raise ConvergenceError(step, _reason_name(reason), its, self.prefix)
+        self._copy_in(self._x)
+        return its
+
+    def residual_norm(self) -> float:
+        """The residual norm at the end of the last solve (N for force residuals)."""
+        return float(self.snes.getFunctionNorm())
+
+    def destroy(self) -> None:
+        """Free the PETSc objects."""
+        for obj in (self.snes, self._A, self._b, self._x):
+            obj.destroy()
+
+
+def _reason_name(reason: int) -> str:
+    names = [n for n, v in vars(PETSc.SNES.ConvergedReason).items() if v == reason]
+    return f"{names[0] if names else 'UNKNOWN'} ({reason})"
+
+
+@dataclass
+class StepperStats:
+    """What a :func:`march` loop did."""
+
+    steps: int = 0
+    cutbacks: int = 0
+
+
+def march(
+    times: np.ndarray,
+    advance: Callable[[float, float], None],
+    save: Callable[[], object],
+    restore: Callable[[object], None],
+    on_step: Callable[[float], None] | None = None,
+    max_cutbacks: int = 6,
+    stats: StepperStats | None = None,
+) -> StepperStats:
+    """Step through ``times`` (increasing), cutting a failing interval back by halves.
+
+    ``advance(t0, t1)`` takes the state from ``t0`` to ``t1`` and raises
+    :class:`ConvergenceError` on failure; ``save()`` returns a snapshot of the state and
+    ``restore(snapshot)`` puts it back. A failing interval is split in two, recursively, up to
+    ``max_cutbacks`` levels; beyond that the last :class:`ConvergenceError` is re-raised (the
+    states of the completed times stay as they were reported through ``on_step``).
+    ``on_step(t)`` is called after each time of ``times`` is reached.
+    """
+    stats = stats or StepperStats()
+    for t0, t1 in zip(times[:-1], times[1:]):
+        _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, depth=0)
+        if on_step is not None:
+            on_step(t1)
+    return stats
+
+
+def _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, depth):
+    snapshot = save()
+    try:
+        advance(t0, t1)
+        stats.steps += 1
+        return
+    except ConvergenceError as err:
+        restore(snapshot)
+        if depth >= max_cutbacks:
+            raise ConvergenceError(
+                f"{err.step} (after {depth} cut-back(s) to dt={t1 - t0:.3g})",
+                err.reason,
+                err.iterations,
+                err.prefix,
+            ) from err
+        stats.cutbacks += 1
+        logger.warning("step %s failed (%s): cutting back to dt=%.3g", err.step, err.reason,
+                       (t1 - t0) / 2)
+    tm = 0.5 * (t0 + t1)
+    _advance_with_cutback(t0, tm, advance, save, restore, max_cutbacks, stats, depth + 1)
+    _advance_with_cutback(tm, t1, advance, save, restore, max_cutbacks, stats, depth + 1)

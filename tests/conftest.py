@@ -1,0 +1,22 @@
+"""Shared fixtures: a temporary folder common to all MPI ranks, and a collective teardown."""
+
+from __future__ import annotations
+
+import gc
+from pathlib import Path
+
+import pytest
+from mpi4py import MPI
+
+
+@pytest.fixture
+def comm_tmp(tmp_path: Path) -> Path:
+    """Rank 0's ``tmp_path``, the same on every rank (each rank's own differs under mpirun)."""
+    return Path(MPI.COMM_WORLD.bcast(str(tmp_path), root=0))
+
+
+@pytest.fixture(autouse=True)
+def _collective_teardown():
+    yield
+    gc.collect()
+    MPI.COMM_WORLD.Barrier()

@@ -18,7 +18,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(PY) -m shoulder_fem.cli demo --level $(LEVEL) --out $(DEMO_OUT)
+	$(PY) -m shoulder_fem.cli bench spinning-bar --level $(LEVEL) --out $(DEMO_OUT)
 
 test: setup
 	$(PY) -m pytest -q tests

@@ -33,9 +33,11 @@ def build_bar(
 
     Args:
         comm: communicator the mesh is distributed on.
-        x0, x1: axial extent (m), x1 > x0.
+        x0: axial position of the root face (m).
+        x1: axial position of the tip face (m), x1 > x0.
         side: side of the square section (m).
-        n_axial, n_side: numbers of cells along the bar and across each side.
+        n_axial: number of cells along the bar.
+        n_side: number of cells across each side.
     """
     if not x1 > x0:
         raise ValueError(f"bar: outer end x1 = {x1} m must exceed inner end x0 = {x0} m")

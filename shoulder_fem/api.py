@@ -83,6 +83,21 @@ class Result:
         return cls(load_summary(folder), Path(folder))
 
 
+def _make_parent(out: Path, comm: MPI.Comm) -> None:
+    """Create ``out``'s parent folders on rank 0; every rank raises the same error on failure."""
+    from .results import OutputError
+
+    error = None
+    if comm.rank == 0:
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            error = f"--out {out}: cannot create its parent folder: {err.strerror or err}"
+    error = comm.bcast(error, root=0)
+    if error:
+        raise OutputError(error)
+
+
 def check_method(method: str) -> str:
     """Return ``method`` if it is known, else raise a clear :class:`SceneError`."""
     if method not in METHODS:
@@ -97,6 +112,7 @@ def run(
     out: str | Path = "results/run",
     comm: MPI.Comm = MPI.COMM_WORLD,
     solver_options: dict | None = None,
+    make_parents: bool = True,
 ) -> Result:
     """Run ``scene`` with ``method`` ("coupled" or "decoupled") and write ``out``.
 
@@ -104,6 +120,8 @@ def run(
     level or parameter, or an unusable output folder raises :class:`SceneError` /
     ``OutputError`` (both ``ValueError``) and leaves nothing behind. A solver failure writes
     the completed steps with ``status = "failed"`` and raises :class:`RunFailed`.
+    ``make_parents`` creates the parent folders of ``out`` (the CLI turns it off, so that a
+    mistyped ``--out`` is an error rather than a new tree of folders).
 
     Returns:
         The run's summary.
@@ -122,6 +140,8 @@ def run(
     level = level or scene.default_level
     scene.level(level)  # unknown level → SceneError now
     out = Path(out)
+    if make_parents:
+        _make_parent(out, comm)
     with OutputDir(out, comm) as outdir:
         monitor = ResourceMonitor(comm, outdir.scratch)
         recorder = Recorder(comm, outdir)
@@ -132,8 +152,14 @@ def run(
         with monitor.stage("mesh"):
             model = family.build(scene, level, comm)
         recorder.extra("dofs", family.dofs(model))
-        logger.info("%s / %s / %s: %d DOFs on %d rank(s)", scene.name, method, level,
-                    family.dofs(model), comm.size)
+        logger.info(
+            "%s / %s / %s: %d DOFs on %d rank(s)",
+            scene.name,
+            method,
+            level,
+            family.dofs(model),
+            comm.size,
+        )
         fields = outdir.path / "fields"
         if comm.rank == 0:
             fields.mkdir(exist_ok=True)

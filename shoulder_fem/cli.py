@@ -47,11 +47,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="shoulder-fem",
         description="Large motions with small strains: coupled and decoupled FEniCSx solvers.",
     )
-    parser.add_argument("-v", "--verbose", action="count", default=1,
-                        help="more log lines (-vv: debug)")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=1, help="more log lines (-vv: debug)"
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
-    parser.add_argument("--log-all-ranks", action="store_true",
-                        help="log from every MPI rank, prefixed 'CPU n:'")
+    parser.add_argument(
+        "--log-all-ranks", action="store_true", help="log from every MPI rank, prefixed 'CPU n:'"
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     sub.add_parser("scenes", help="list the built-in scenes")
@@ -73,13 +75,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _common_run_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--level", choices=["coarse", "medium", "paper", "fine"], default=None,
-                   help="mesh level (default: the scene's)")
-    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scene parameter (SI, or with a unit: spin_rate=600rpm)")
+    p.add_argument(
+        "--level",
+        choices=["coarse", "medium", "paper", "fine"],
+        default=None,
+        help="mesh level (default: the scene's)",
+    )
+    p.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scene parameter (SI, or with a unit: spin_rate=600rpm)",
+    )
     p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
-    p.add_argument("--linear-solver", choices=["direct", "iterative"], default="direct",
-                   help="MUMPS LU (default) or CG + GAMG with rigid-body near-nullspace")
+    p.add_argument(
+        "--linear-solver",
+        choices=["direct", "iterative"],
+        default="direct",
+        help="MUMPS LU (default) or CG + GAMG with rigid-body near-nullspace",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,8 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     from .scene import SceneError
 
     try:
-        return {"scenes": cmd_scenes, "run": cmd_run, "compare": cmd_compare,
-                "bench": cmd_bench}[args.command](args)
+        return {"scenes": cmd_scenes, "run": cmd_run, "compare": cmd_compare, "bench": cmd_bench}[
+            args.command
+        ](args)
     except (SceneError, OutputError) as err:
         _error(str(err))
         return EXIT_INPUT
@@ -147,7 +164,9 @@ def cmd_run(args) -> int:
 
     scene, options = _prepare(args)
     try:
-        result = run(scene, args.method, args.level, args.out, solver_options=options)
+        result = run(
+            scene, args.method, args.level, args.out, solver_options=options, make_parents=False
+        )
     except RunFailed as err:
         raise _SolverFailure(str(err)) from err
     _print(_probe_lines(result.data))
@@ -157,14 +176,19 @@ def cmd_run(args) -> int:
 
 def _probe_lines(summary: dict) -> str:
     res = summary["resources"]
-    lines = [f"{summary['scene']} / {summary['method']} / {summary['level']}: "
-             f"CPU {res['cpu_s']:.2f} s, wall {res['wall_s']:.2f} s, "
-             f"peak memory {res['peak_rss_mb']:.0f} MB, {summary.get('dofs')} DOFs, "
-             f"{res['ranks']} rank(s)"]
+    lines = [
+        f"{summary['scene']} / {summary['method']} / {summary['level']}: "
+        f"CPU {res['cpu_s']:.2f} s, wall {res['wall_s']:.2f} s, "
+        f"peak memory {res['peak_rss_mb']:.0f} MB, {summary.get('dofs')} DOFs, "
+        f"{res['ranks']} rank(s)"
+    ]
     for name, value in summary["probes"].items():
         unit = summary.get("probe_units", {}).get(name) or ""
-        lines.append(f"  {name:28s} {value:.6g} {unit}" if isinstance(value, float)
-                     else f"  {name:28s} {value} {unit}")
+        lines.append(
+            f"  {name:28s} {value:.6g} {unit}"
+            if isinstance(value, float)
+            else f"  {name:28s} {value} {unit}"
+        )
     return "\n".join(lines)
 
 
@@ -201,20 +225,24 @@ def write_comparison(ref: dict, other: dict, folder: Path, comm) -> dict:
             if analytic is not None:
                 reference = (analytic["x"], analytic["y"], "analytic")
             plots.plot_series([ref, other], name, folder / f"{name}.png", reference=reference)
-        plots.plot_resources({ref["method"]: ref, other["method"]: other},
-                             folder / "resources.png")
+        plots.plot_resources({ref["method"]: ref, other["method"]: other}, folder / "resources.png")
     return report
 
 
 def _comparison_lines(report: dict) -> str:
-    lines = [f"{report['scene']}: {report['other']['method']} against "
-             f"{report['reference']['method']}"]
+    lines = [
+        f"{report['scene']}: {report['other']['method']} against {report['reference']['method']}"
+    ]
     for name, p in report["probes"].items():
-        lines.append(f"  {name:28s} ref {p['reference']:.6g}  other {p['other']:.6g}  "
-                     f"rel. diff {p['relative_difference']:+.2e}")
+        lines.append(
+            f"  {name:28s} ref {p['reference']:.6g}  other {p['other']:.6g}  "
+            f"rel. diff {p['relative_difference']:+.2e}"
+        )
     for name, s in report["series"].items():
-        lines.append(f"  series {name:21s} max rel. diff {s['max_rel_diff']:.2e}  "
-                     f"correlation {s['correlation']:.6f}  slope {s['slope']:.4f}")
+        lines.append(
+            f"  series {name:21s} max rel. diff {s['max_rel_diff']:.2e}  "
+            f"correlation {s['correlation']:.6f}  slope {s['slope']:.4f}"
+        )
     r = report["resources"]
     lines.append(f"  speed-up (CPU) {r['speedup_cpu']:.2f}x   memory ratio {r['memory_ratio']:.2f}")
     return "\n".join(lines)
@@ -234,8 +262,9 @@ def cmd_bench(args) -> int:
         runs = {}
         for method in ("coupled", "decoupled"):
             try:
-                runs[method] = run(scene, method, args.level, out.path / method,
-                                   comm=comm, solver_options=options).data
+                runs[method] = run(
+                    scene, method, args.level, out.path / method, comm=comm, solver_options=options
+                ).data
             except RunFailed as err:
                 out.commit()
                 raise _SolverFailure(str(err)) from err
@@ -245,9 +274,20 @@ def cmd_bench(args) -> int:
         table = resources_table(runs)
         if comm.rank == 0:
             atomic_write_json(out.path / "report.json", report)
-            md = [f"# {scene.name}: coupled against decoupled ({args.level or scene.default_level})",
-                  "", "## Resources", "", table, "", "## Results", "", "```",
-                  _comparison_lines(report), "```", ""]
+            md = [
+                f"# {scene.name}: coupled against decoupled ({args.level or scene.default_level})",
+                "",
+                "## Resources",
+                "",
+                table,
+                "",
+                "## Results",
+                "",
+                "```",
+                _comparison_lines(report),
+                "```",
+                "",
+            ]
             (out.path / "report.md").write_text("\n".join(md))
     _print(_probe_lines(runs["coupled"]))
     _print(_probe_lines(runs["decoupled"]))

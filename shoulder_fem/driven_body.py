@@ -70,25 +70,30 @@ def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> Driven
     """Check the scene's parameters together and build the mesh of ``level``."""
     p = scene.values()
     lv = scene.level(level)
-    where = scene.source
     if p["outer_radius"] <= p["inner_radius"]:
         raise SceneError(
-            f"{where}: outer_radius = {p['outer_radius']} m must exceed "
+            f"{scene.where('outer_radius', 'inner_radius')}: "
+            f"outer_radius = {p['outer_radius']} m must exceed "
             f"inner_radius = {p['inner_radius']} m"
         )
     if p["time_step"] > p["end_time"]:
         raise SceneError(
-            f"{where}: time_step = {p['time_step']} s exceeds end_time = {p['end_time']} s"
+            f"{scene.where('time_step', 'end_time')}: "
+            f"time_step = {p['time_step']} s exceeds end_time = {p['end_time']} s"
         )
     for key in ("degree", "n_axial", "n_side"):
         if key not in lv or int(lv[key]) < 1:
-            raise SceneError(f"{where}: levels.{level}.{key} must be a positive integer")
+            raise SceneError(f"{scene.source}: levels.{level}.{key} must be a positive integer")
     n_steps = max(1, int(round(p["end_time"] / p["time_step"])))
     times = np.linspace(0.0, p["end_time"], n_steps + 1)
     n_fields = min(int(p["field_outputs"]), n_steps)
     field_idx = np.unique(np.round(np.linspace(0, n_steps, n_fields + 1)).astype(int))
     mesh, tags = build_bar(
-        comm, p["inner_radius"], p["outer_radius"], p["side"], int(lv["n_axial"]),
+        comm,
+        p["inner_radius"],
+        p["outer_radius"],
+        p["side"],
+        int(lv["n_axial"]),
         int(lv["n_side"]),
     )
     return DrivenBody(

@@ -28,8 +28,13 @@ def _label(summary: dict) -> str:
     return f"{summary.get('method')} ({summary.get('level')})"
 
 
-def plot_series(runs: list[dict], name: str, path: Path, title: str | None = None,
-                reference: tuple[np.ndarray, np.ndarray, str] | None = None) -> Path:
+def plot_series(
+    runs: list[dict],
+    name: str,
+    path: Path,
+    title: str | None = None,
+    reference: tuple[np.ndarray, np.ndarray, str] | None = None,
+) -> Path:
     """Series ``name`` of several runs on one axis; optional analytic reference curve."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for s in runs:
@@ -64,14 +69,37 @@ def plot_resources(runs: dict[str, dict], path: Path) -> Path:
 
 
 def plot_cpu_vs_error(points: list[dict], path: Path, title: str) -> Path:
-    """CPU time against error, one marker per run (label, cpu_s, error)."""
-    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    """CPU time against error, one marker per run (label, method, cpu_s, error).
+
+    A point with zero error is the reference itself: drawn as a vertical line at its CPU time.
+    """
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for p in points:
-        marker = "o" if p["method"] == "coupled" else "s"
         color = "C0" if p["method"] == "coupled" else "C3"
-        ax.loglog(p["cpu_s"], max(p["error"], 1e-16), marker, color=color, ms=7)
-        ax.annotate(p["label"], (p["cpu_s"], max(p["error"], 1e-16)), textcoords="offset points",
-                    xytext=(5, 4), fontsize=8)
+        if p["error"] == 0.0:
+            ax.axvline(p["cpu_s"], color=color, ls=":", lw=1.2)
+            ax.annotate(
+                f"reference: {p['label']}",
+                (p["cpu_s"], 0.5),
+                xycoords=("data", "axes fraction"),
+                rotation=90,
+                ha="right",
+                va="center",
+                fontsize=8,
+                color=color,
+            )
+            continue
+        marker = "o" if p["method"] == "coupled" else "s"
+        ax.loglog(p["cpu_s"], p["error"], marker, color=color, ms=7)
+        ax.annotate(
+            p["label"],
+            (p["cpu_s"], p["error"]),
+            textcoords="offset points",
+            xytext=(5, 4),
+            fontsize=8,
+        )
+    ax.set_xscale("log")
+    ax.set_yscale("log")
     ax.set_xlabel("CPU time [s] (sum over ranks)")
     ax.set_ylabel("relative error")
     ax.set_title(title)

@@ -15,7 +15,7 @@ Peak memory of a stage: at stage start the kernel's resident-memory high-water m
 reset by writing ``5`` to ``/proc/self/clear_refs`` (Linux >= 4.0, own process). If the kernel
 refuses, the stage reports the process peak up to the stage end instead, and the output says so
 with ``peak_rss_stage_reset = false``. The run-wide peak is always the true process peak: the
-high-water mark is read before every reset and kept.
+high-water mark is read before every reset and kept (by every monitor alive in the process).
 
 The BLAS actually loaded in the process is read from ``/proc/self/maps`` by :func:`blas_library`.
 """
@@ -27,6 +27,7 @@ import os
 import re
 import resource
 import time
+import weakref
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +52,9 @@ MB = 2**20
 _STATUS = Path("/proc/self/status")
 _CLEAR_REFS = Path("/proc/self/clear_refs")
 _MAPS = Path("/proc/self/maps")
+
+_LIVE_MONITORS: weakref.WeakSet[ResourceMonitor] = weakref.WeakSet()
+"""Every monitor in this process: all must see the high-water mark before anyone resets it."""
 
 
 def dir_size_bytes(
@@ -180,6 +184,7 @@ class ResourceMonitor:
         self._reset_ok = True
         self._scratch_peak = 0
         self._stages: list[dict[str, Any]] | None = None
+        _LIVE_MONITORS.add(self)
         self.sample()
 
     def _fold_peak(self) -> None:
@@ -199,7 +204,8 @@ class ResourceMonitor:
         Args:
             name: stage name, e.g. ``"part1-rigid"``.
         """
-        self._fold_peak()
+        for monitor in list(_LIVE_MONITORS):
+            monitor._fold_peak()
         reset = _reset_hwm()
         self._reset_ok = self._reset_ok and reset
         start_hwm = _memory_kib()[0]

@@ -517,7 +517,7 @@ class Recorder:
 
         data: dict[str, Any] = {
             "version": __version__,
-            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             **self.meta,
             "status": self.status,
             "message": self.message,

@@ -33,19 +33,35 @@ LEVELS = ("coarse", "medium", "paper", "fine")
 
 #: unit → (SI unit, factor to SI)
 UNITS: dict[str, tuple[str, float]] = {
-    "m": ("m", 1.0), "cm": ("m", 1e-2), "mm": ("m", 1e-3),
-    "Pa": ("Pa", 1.0), "kPa": ("Pa", 1e3), "MPa": ("Pa", 1e6), "GPa": ("Pa", 1e9),
-    "kg/m^3": ("kg/m^3", 1.0), "g/cm^3": ("kg/m^3", 1e3),
-    "s": ("s", 1.0), "ms": ("s", 1e-3),
-    "rad/s": ("rad/s", 1.0), "deg/s": ("rad/s", math.pi / 180.0),
+    "m": ("m", 1.0),
+    "cm": ("m", 1e-2),
+    "mm": ("m", 1e-3),
+    "Pa": ("Pa", 1.0),
+    "kPa": ("Pa", 1e3),
+    "MPa": ("Pa", 1e6),
+    "GPa": ("Pa", 1e9),
+    "kg/m^3": ("kg/m^3", 1.0),
+    "g/cm^3": ("kg/m^3", 1e3),
+    "s": ("s", 1.0),
+    "ms": ("s", 1e-3),
+    "rad/s": ("rad/s", 1.0),
+    "deg/s": ("rad/s", math.pi / 180.0),
     "rpm": ("rad/s", 2.0 * math.pi / 60.0),
-    "rad": ("rad", 1.0), "deg": ("rad", math.pi / 180.0),
-    "N": ("N", 1.0), "N*m": ("N*m", 1.0), "N/m": ("N/m", 1.0), "N/mm": ("N/m", 1e3),
+    "rad": ("rad", 1.0),
+    "deg": ("rad", math.pi / 180.0),
+    "N": ("N", 1.0),
+    "N*m": ("N*m", 1.0),
+    "N/m": ("N/m", 1.0),
+    "N/mm": ("N/m", 1e3),
     "1": ("1", 1.0),
 }
 
-_BOUNDS = {"gt": (">", lambda v, b: v > b), "ge": (">=", lambda v, b: v >= b),
-           "lt": ("<", lambda v, b: v < b), "le": ("<=", lambda v, b: v <= b)}
+_BOUNDS = {
+    "gt": (">", lambda v, b: v > b),
+    "ge": (">=", lambda v, b: v >= b),
+    "lt": ("<", lambda v, b: v < b),
+    "le": ("<=", lambda v, b: v <= b),
+}
 _NUMBER_WITH_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S*)\s*$")
 
 
@@ -117,6 +133,7 @@ class Scene:
     levels: dict[str, dict]
     source: str
     default_level: str = "coarse"
+    overridden: tuple[str, ...] = ()
 
     def __getitem__(self, key: str):
         """SI value of parameter ``key``."""
@@ -146,7 +163,15 @@ class Scene:
                     f"(known: {', '.join(sorted(params))})"
                 )
             params[key] = params[key].checked(value, where)
-        return replace(self, parameters=params)
+        overridden = tuple(dict.fromkeys(self.overridden + tuple(values)))
+        return replace(self, parameters=params, overridden=overridden)
+
+    def where(self, *keys: str) -> str:
+        """Where parameters ``keys`` came from, for messages: the file and/or the overrides."""
+        changed = [k for k in keys if k in self.overridden]
+        if not changed:
+            return self.source
+        return f"{self.source} with override(s) {', '.join(changed)}"
 
     def with_overrides(self, assignments: list[str]) -> Scene:
         """Apply ``key=value`` strings (the CLI's ``--set``)."""
@@ -268,11 +293,9 @@ def _parameter_from_spec(name: str, spec, source: str) -> Parameter:
     else:
         file_unit = spec.get("unit")
         if file_unit is None:
-            raise SceneError(f"{where}: value {value} has no unit (use unit = \"1\" if none)")
+            raise SceneError(f'{where}: value {value} has no unit (use unit = "1" if none)')
         if file_unit not in UNITS:
-            raise SceneError(
-                f"{where}: unknown unit '{file_unit}' (known: {', '.join(UNITS)})"
-            )
+            raise SceneError(f"{where}: unknown unit '{file_unit}' (known: {', '.join(UNITS)})")
         si_unit, factor = UNITS[file_unit]
         if not isinstance(value, int | float):
             raise SceneError(f"{where}: value {value!r} {file_unit} is not a number")

@@ -31,6 +31,7 @@ logger = logging.getLogger(__name__)
 
 _prefix_counter = itertools.count()
 
+
 class ConvergenceError(RuntimeError):
     """A nonlinear (or linear) solve did not converge.
 
@@ -131,6 +132,7 @@ class SolveStats:
     newton_iterations: int = 0
     linear_solves: int = 0
     factorizations: int = 0
+    krylov_iterations: int = 0
     history: list[int] = field(default_factory=list)
 
 
@@ -146,6 +148,12 @@ class NonlinearSolver:
         options: PETSc options overriding :func:`default_snes_options`.
         linear: the problem is linear in ``u``: SNES ``ksponly`` and the Jacobian is
             assembled only on the first solve and after :meth:`operator_changed`.
+        operator: for ``linear`` problems, a callback ``operator(A)`` that fills the matrix
+            instead of assembling ``jacobian`` (e.g. A = A0 + Ω G from pre-assembled parts).
+        lagged_factorization: keep the LU factorization of an earlier operator as the
+            preconditioner of a Krylov method (set ``ksp_type``, e.g. gmres) after the operator
+            changes; re-factorize only when a solve needed more than ``max_lagged_iterations``
+            Krylov iterations or failed. For operators that drift slowly (a Coriolis term).
         near_nullspace: attach the rigid-body modes (for GAMG).
         form_compiler_params: passed to ``dolfinx.fem.form`` (e.g. quadrature_degree).
     """
@@ -161,8 +169,16 @@ class NonlinearSolver:
         linear: bool = False,
         near_nullspace: bool = False,
         form_compiler_params: dict | None = None,
+        operator: Callable[[PETSc.Mat], None] | None = None,
+        lagged_factorization: bool = False,
+        max_lagged_iterations: int = 8,
     ):
         self.u = u
+        self._fill_operator = operator
+        self._lagged = lagged_factorization
+        self._max_lagged = max_lagged_iterations
+        self._refactor = True
+        self._reusing = False
         self.bcs = list(bcs or [])
         self.linear = linear
         comm = u.function_space.mesh.comm
@@ -190,7 +206,8 @@ class NonlinearSolver:
         for key, value in opts.items():
             db[f"{self.prefix}{key}"] = value
         self.snes.setFunction(self._residual, self._b)
-        self.snes.setJacobian(self._jacobian, self._A)
+        self._P = fem_petsc.create_matrix(self._J) if lagged_factorization else self._A
+        self.snes.setJacobian(self._jacobian, self._A, self._P)
         self.snes.setFromOptions()
         self.snes.getKSP().setFromOptions()
         for key in opts:
@@ -215,16 +232,39 @@ class NonlinearSolver:
         if self.linear and not self._operator_changed:
             return  # unchanged matrix state: PETSc keeps the factorization
         self._copy_in(x)
-        A.zeroEntries()
-        fem_petsc.assemble_matrix(A, self._J, bcs=self.bcs)
-        A.assemble()
+        if self._fill_operator is not None:
+            if not A.assembled:  # give the matrix its full pattern once
+                fem_petsc.assemble_matrix(A, self._J, bcs=self.bcs)
+                A.assemble()
+            self._fill_operator(A)
+        else:
+            A.zeroEntries()
+            fem_petsc.assemble_matrix(A, self._J, bcs=self.bcs)
+            A.assemble()
         self._operator_changed = False
-        self.stats.factorizations += 1
+        refactor = self._refactor or not self._lagged
+        # Lagged: the preconditioner matrix P is a separate copy, updated only to refactor;
+        # PETSc re-factorizes only when P's state changes.
+        if self._lagged and refactor:
+            if not P.assembled:  # give P its full pattern once
+                fem_petsc.assemble_matrix(P, self._J, bcs=self.bcs)
+                P.assemble()
+            A.copy(P, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        self._reusing = not refactor
+        if refactor:
+            self.stats.factorizations += 1
+            self._refactor = False
 
     # -- public API ------------------------------------------------------------------------
     def operator_changed(self) -> None:
         """Tell a ``linear`` solver that its operator changed (next solve re-assembles)."""
         self._operator_changed = True
+
+    def assemble_jacobian(self) -> PETSc.Mat:
+        """A new matrix: the Jacobian form assembled now, with the Dirichlet rows (collective)."""
+        A = fem_petsc.assemble_matrix(self._J, bcs=self.bcs)
+        A.assemble()
+        return A
 
     def solve(self, step: str = "") -> int:
         """Solve from the current ``u``; return the Newton iteration count.
@@ -235,7 +275,24 @@ class NonlinearSolver:
         """
         self.u.vector.copy(self._x)
         self.snes.solve(None, self._x)
+        ksp = self.snes.getKSP()
+        if self._lagged and ksp.getConvergedReason() <= 0 and self._reusing:
+            # The lagged factorization was not good enough: factorize this operator, retry.
+            logger.info(
+                "%s: lagged factorization failed (%s), re-factorizing",
+                self.prefix,
+                ksp.getConvergedReason(),
+            )
+            self._refactor, self._operator_changed = True, True
+            self.u.vector.copy(self._x)
+            self.snes.solve(None, self._x)
+        krylov = ksp.getIterationNumber()
+        self.stats.krylov_iterations += krylov
+        if self._lagged and krylov > self._max_lagged:
+            self._refactor = True  # next operator change gets a fresh factorization
         reason = self.snes.getConvergedReason()
+        if self.linear and ksp.getConvergedReason() <= 0:
+            reason = PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE
         its = self.snes.getIterationNumber()
         self.stats.solves += 1
         self.stats.newton_iterations += its
@@ -252,7 +309,7 @@ class NonlinearSolver:
 
     def destroy(self) -> None:
         """Free the PETSc objects."""
-        for obj in (self.snes, self._A, self._b, self._x):
+        for obj in {self.snes, self._A, self._P, self._b, self._x}:
             obj.destroy()
 
 
@@ -288,7 +345,7 @@ def march(
     ``on_step(t)`` is called after each time of ``times`` is reached.
     """
     stats = stats or StepperStats()
-    for t0, t1 in zip(times[:-1], times[1:]):
+    for t0, t1 in zip(times[:-1], times[1:], strict=True):
         _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, depth=0)
         if on_step is not None:
             on_step(t1)
@@ -311,8 +368,9 @@ def _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, d
                 err.prefix,
             ) from err
         stats.cutbacks += 1
-        logger.warning("step %s failed (%s): cutting back to dt=%.3g", err.step, err.reason,
-                       (t1 - t0) / 2)
+        logger.warning(
+            "step %s failed (%s): cutting back to dt=%.3g", err.step, err.reason, (t1 - t0) / 2
+        )
     tm = 0.5 * (t0 + t1)
     _advance_with_cutback(t0, tm, advance, save, restore, max_cutbacks, stats, depth + 1)
     _advance_with_cutback(tm, t1, advance, save, restore, max_cutbacks, stats, depth + 1)

@@ -20,6 +20,7 @@ import pytest
 import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
+
 from shoulder_fem.forms import (
     BONE_E0,
     BONE_NU,

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import ufl
 from mpi4py import MPI
+
 from shoulder_fem.forms import (
     LinearElastic,
     body_force_power,

@@ -53,8 +53,11 @@ def test_root_reaction_is_the_total_centrifugal_force(comm_tmp):
     for degree in (1, 2):
         result = run(steady_scene(degree, 5, 1), "decoupled", out=comm_tmp / f"r{degree}")
         p = result.parameters
-        exact = 0.5 * p["density"] * p["spin_rate"] ** 2 * (
-            p["outer_radius"] ** 2 - p["inner_radius"] ** 2
+        exact = (
+            0.5
+            * p["density"]
+            * p["spin_rate"] ** 2
+            * (p["outer_radius"] ** 2 - p["inner_radius"] ** 2)
         )
         assert result.probes["root_axial_stress"] == pytest.approx(exact, rel=1e-10)
 
@@ -63,7 +66,9 @@ def first_bending_frequency(p: dict) -> float:
     """Cantilever (Euler–Bernoulli): ω1 = 1.8751² √(EI/(ρA L⁴)), I = a⁴/12, rad/s."""
     length = p["outer_radius"] - p["inner_radius"]
     a = p["side"]
-    return 1.8751**2 * math.sqrt(p["youngs_modulus"] * a**4 / 12 / (p["density"] * a**2)) / length**2
+    return (
+        1.8751**2 * math.sqrt(p["youngs_modulus"] * a**4 / 12 / (p["density"] * a**2)) / length**2
+    )
 
 
 def test_coupled_and_decoupled_agree_at_low_spin(comm_tmp):
@@ -84,7 +89,9 @@ def test_coupled_and_decoupled_agree_at_low_spin(comm_tmp):
     other = run(scene, "decoupled", out=comm_tmp / "d")
     metrics = compare_summaries(ref.data, other.data)
     p = ref.parameters
-    tol_tip = (p["spin_rate"] / first_bending_frequency(p)) ** 2 + (p["spin_rate"] * p["time_step"]) ** 2
+    tol_tip = (p["spin_rate"] / first_bending_frequency(p)) ** 2 + (
+        p["spin_rate"] * p["time_step"]
+    ) ** 2
     assert metrics["series"]["tip_deflection"]["max_rel_diff"] < tol_tip
     assert abs(metrics["probes"]["root_axial_stress"]["relative_difference"]) < 1e-3
     for result in (ref, other):
@@ -110,8 +117,10 @@ def test_parallel_matches_serial(comm_tmp, method):
     for name, value in alone.probes.items():
         assert world.probes[name] == pytest.approx(value, rel=1e-8, abs=1e-12), name
     np.testing.assert_allclose(
-        world.series["tip_deflection"]["y"], alone.series["tip_deflection"]["y"],
-        rtol=1e-8, atol=1e-13,
+        world.series["tip_deflection"]["y"],
+        alone.series["tip_deflection"]["y"],
+        rtol=1e-8,
+        atol=1e-13,
     )
 
 
@@ -119,7 +128,7 @@ def test_divergence_keeps_completed_steps(comm_tmp):
     """A spin rate far beyond anything elastic (3e4 rad/s, strains of order one) makes the
     coupled Newton fail during spin-up: the run says so with the step and reason, and the
     folder holds the completed steps with status "failed"."""
-    from shoulder_fem import RunFailed, Result
+    from shoulder_fem import Result, RunFailed
 
     scene = load_scene("spinning-bar").with_values(
         spin_rate=3e4, spin_up_time=0.01, end_time=0.01, time_step=1e-3, field_outputs=2

@@ -64,7 +64,10 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
     bc = dolfinx.fem.dirichletbc(u_clamp, dofs)
     force_scale = model.youngs_modulus * model.area
     solver = NonlinearSolver(
-        residual, u, [bc], name="coupled",
+        residual,
+        u,
+        [bc],
+        name="coupled",
         options={"snes_atol": 1e-13 * force_scale, **(options or {})},
         form_compiler_params=quadrature(model),
     )
@@ -87,8 +90,9 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
         its = solver.solve(step=f"t = {t1:.6g} s")
         # Clamp reaction now, while the Newmark acceleration in the form is this step's.
         last["reaction"] = r1.T @ boundary_reaction(residual_form, dofs, comm)
-        a_next = (u.x.array - u_n.x.array - (t1 - t0) * v_n.x.array) / (beta * (t1 - t0) ** 2) \
-            - (1.0 / (2 * beta) - 1.0) * a_n.x.array
+        a_next = (u.x.array - u_n.x.array - (t1 - t0) * v_n.x.array) / (beta * (t1 - t0) ** 2) - (
+            1.0 / (2 * beta) - 1.0
+        ) * a_n.x.array
         v_n.x.array[:] += (t1 - t0) * ((1 - gamma) * a_n.x.array + gamma * a_next)
         a_n.x.array[:] = a_next
         u_n.x.array[:] = u.x.array
@@ -98,7 +102,7 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
         return [f.x.array.copy() for f in (u, u_n, v_n, a_n)]
 
     def restore(snapshot) -> None:
-        for f, arr in zip((u, u_n, v_n, a_n), snapshot):
+        for f, arr in zip((u, u_n, v_n, a_n), snapshot, strict=True):
             f.x.array[:] = arr
 
     writer = FieldWriter(comm, mesh, fields_dir / "displacement.xdmf")
@@ -121,8 +125,13 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
             writer.write([u, body_u], t)
             stress_writer.write(outputs.update_fields(), t)
         monitor.sample()
-        log_progress(last["step"], len(model.times) - 1, t, model.motion.rate(t),
-                     f"Newton {solver.stats.history[-1] if solver.stats.history else 0}")
+        log_progress(
+            last["step"],
+            len(model.times) - 1,
+            t,
+            model.motion.rate(t),
+            f"Newton {solver.stats.history[-1] if solver.stats.history else 0}",
+        )
         last["step"] += 1
 
     stats = StepperStats()
@@ -146,8 +155,11 @@ def finish_probes(model: DrivenBody, recorder, outputs: BodyOutputs, last: dict)
     centres, profile = outputs.axial_stress_profile()
     recorder.set_series("axial_stress_profile", centres, profile, "m", "Pa")
     recorder.set_series(
-        "axial_stress_profile_analytic", centres,
-        model.analytic_axial_stress(centres, model.motion.rate(last["t"])), "m", "Pa",
+        "axial_stress_profile_analytic",
+        centres,
+        model.analytic_axial_stress(centres, model.motion.rate(last["t"])),
+        "m",
+        "Pa",
     )
     recorder.set_probe("root_axial_stress", -last["reaction"][0] / model.area, "Pa")
     recorder.set_probe("tip_deflection_final", outputs.tip_deflection(), "m")
@@ -170,3 +182,4 @@ def solver_counts(recorder, solver, stats) -> None:
     recorder.count("newton_iterations", solver.stats.newton_iterations)
     recorder.count("linear_solves", solver.stats.linear_solves)
     recorder.count("factorizations", solver.stats.factorizations)
+    recorder.extra("krylov_iterations", solver.stats.krylov_iterations)

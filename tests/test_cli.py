@@ -1,0 +1,103 @@
+"""The command line and the driver API: what a researcher types, including mistakes."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mpi4py import MPI
+
+from shoulder_fem.cli import EXIT_INPUT, main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir()) if folder.exists() else []
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["run", "no-such-scene", "--method", "coupled"], "unknown scene 'no-such-scene'"),
+        (
+            ["run", "spinning-bar", "--method", "decoupled", "--set", "spin_speed=3"],
+            "unknown parameter 'spin_speed'",
+        ),
+        (
+            ["run", "spinning-bar", "--method", "coupled", "--set", "youngs_modulus=-15GPa"],
+            "youngs_modulus = -1.5e+10 Pa (-15 GPa): must be > 0",
+        ),
+        (
+            ["run", "spinning-bar", "--method", "coupled", "--set", "spin_rate=3mm"],
+            "unit 'mm' is a m unit but spin_rate is in rad/s",
+        ),
+        (
+            ["run", "spinning-bar", "--method", "coupled", "--set", "outer_radius=10mm"],
+            "with override(s) outer_radius: outer_radius = 0.01 m must exceed",
+        ),
+    ],
+)
+def test_bad_input_one_line_error_nothing_written(comm_tmp, capsys, args, expected):
+    out = comm_tmp / "out"
+    status = main(["-q", *args, "--out", str(out)])
+    assert status == EXIT_INPUT
+    err = capsys.readouterr().err.strip()
+    if MPI.COMM_WORLD.rank == 0:
+        assert err.count("\n") == 0 and err.startswith("shoulder-fem: error:"), err
+        assert expected in err
+    MPI.COMM_WORLD.Barrier()  # rank 0 removes the staging folder without a collective
+    assert _leftovers(comm_tmp) == []
+
+
+@pytest.mark.mpi
+def test_unwritable_out(comm_tmp, capsys):
+    """--out under a regular file (root can write anywhere else) is refused before any solve."""
+    blocker = comm_tmp / "a-file"
+    if MPI.COMM_WORLD.rank == 0:
+        blocker.write_text("not a folder")
+    MPI.COMM_WORLD.Barrier()
+    status = main(
+        ["-q", "run", "spinning-bar", "--method", "coupled", "--out", str(blocker / "out")]
+    )
+    assert status == EXIT_INPUT
+    if MPI.COMM_WORLD.rank == 0:
+        assert "is not a folder" in capsys.readouterr().err
+    assert _leftovers(comm_tmp) == ["a-file"]
+
+
+def test_scenes_lists_spinning_bar(capsys):
+    assert main(["scenes"]) == 0
+    assert "spinning-bar" in capsys.readouterr().out
+
+
+def test_help_is_instant():
+    """--help must not import dolfinx (heavy imports live inside the commands)."""
+    code = "import sys; from shoulder_fem.cli import build_parser; print('dolfinx' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_driver_script(tmp_path):
+    """The README's driver runs as a plain script; the root stress goes as Ω² (linear,
+    quasi-static: σ_root = ρΩ²(r_out² − r_in²)/2 = 0.0918 MPa at 10 rad/s... × (Ω/10)²)."""
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "spin_rate_study.py"), str(tmp_path / "s")],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+        cwd=tmp_path,
+    )
+    lines = [ln.split() for ln in out.stdout.strip().splitlines()]
+    rates = [float(ln[0]) for ln in lines]
+    stress = [float(ln[4]) * 1e6 for ln in lines]
+    assert rates == [25.0, 50.0, 100.0]
+    # ρ = 1800 kg/m³, r_out = 0.32 m, r_in = 0.02 m: ρΩ²(r_out² − r_in²)/2 = 91.8 Ω² Pa.
+    for rate, value in zip(rates, stress, strict=True):
+        assert value == pytest.approx(91.8 * rate**2, rel=1e-6)

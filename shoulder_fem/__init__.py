@@ -8,6 +8,13 @@ The API for drivers::
     print(result.probes["root_axial_stress"])
 """
 
+import os
+
+# One thread per MPI rank: OpenBLAS/OpenMP threads on top of MPI ranks slow MUMPS down here.
+# Read by OpenBLAS when it loads, so this only helps when shoulder_fem is imported first.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 __version__ = "0.1.0"
 
 from .api import Result, RunFailed, run  # noqa: E402

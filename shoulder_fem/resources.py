@@ -23,9 +23,12 @@ The BLAS actually loaded in the process is read from ``/proc/self/maps`` by :fun
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import glob
 import os
 import re
 import resource
+import sys
 import time
 import weakref
 from collections.abc import Iterator
@@ -349,13 +352,33 @@ _BLAS_NAME = re.compile(
 )
 
 
-def blas_library() -> str:
-    """The BLAS library actually loaded in this process.
+def _map_petsc_library() -> None:
+    """Map PETSc's shared libraries (and so its BLAS) into the process without initialising PETSc.
 
-    numpy and petsc4py are imported first so that their BLAS is mapped; then
-    ``/proc/self/maps`` is searched for BLAS shared libraries and their paths resolved. The
-    library behind the ``libblas`` interface (what numpy and PETSc link on Debian) is reported
-    first; other BLAS families mapped at the same time are appended.
+    Importing ``petsc4py.PETSc`` would call ``PetscInitialize``, whose counterpart at exit is
+    collective: doing it on one rank only hangs the run at exit. ``dlopen`` of the extension
+    module maps the same libraries with no MPI involved.
+    """
+    if "petsc4py.PETSc" in sys.modules:
+        return
+    try:
+        from petsc4py import lib
+
+        path, arch = lib.getPathArchPETSc()
+        for so in glob.glob(os.path.join(path, arch, "PETSc*.so")):
+            ctypes.CDLL(so, mode=ctypes.RTLD_LOCAL)
+    except (ImportError, OSError, AttributeError, ValueError):
+        pass
+
+
+def blas_library() -> str:
+    """The BLAS library actually loaded in this process (not collective).
+
+    numpy and PETSc's libraries are loaded first (PETSc without initialising it, so this is safe
+    on one rank) so that their BLAS is mapped; then ``/proc/self/maps`` is searched for BLAS
+    shared libraries and their paths resolved. The library behind the ``libblas`` interface
+    (what numpy and PETSc link on Debian) is reported first; other BLAS families mapped at the
+    same time are appended.
 
     Returns:
         E.g. ``"OpenBLAS (openmp) /usr/lib/x86_64-linux-gnu/openblas-openmp/libblas.so.3"``, or
@@ -363,8 +386,7 @@ def blas_library() -> str:
     """
     import numpy  # noqa: F401
 
-    with contextlib.suppress(ImportError):
-        import petsc4py.PETSc  # noqa: F401
+    _map_petsc_library()
     try:
         lines = _MAPS.read_text().splitlines()
     except OSError:

@@ -154,7 +154,7 @@ class NonlinearSolver:
             preconditioner of a Krylov method (set ``ksp_type``, e.g. gmres) after the operator
             changes; re-factorize only when a solve needed more than ``max_lagged_iterations``
             Krylov iterations or failed. For operators that drift slowly (a Coriolis term).
-        near_nullspace: attach the rigid-body modes (for GAMG).
+        near_nullspace: attach the rigid-body modes (done anyway when ``pc_type`` is gamg).
         form_compiler_params: passed to ``dolfinx.fem.form`` (e.g. quadrature_degree).
     """
 
@@ -190,16 +190,15 @@ class NonlinearSolver:
         self._b = fem_petsc.create_vector(self._F)
         self._A = fem_petsc.create_matrix(self._J)
         self._x = self._b.duplicate()
-        if near_nullspace:
-            self._A.setNearNullSpace(rigid_body_modes(u.function_space))
-        self._operator_changed = True
-        self.stats = SolveStats()
-        self.prefix = unique_prefix(name)
-
         opts = default_snes_options()
         if linear:
             opts["snes_type"] = "ksponly"
         opts.update(options or {})
+        self._near_nullspace = near_nullspace or opts.get("pc_type") == "gamg"
+        self._operator_changed = True
+        self.stats = SolveStats()
+        self.prefix = unique_prefix(name)
+
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(self.prefix)
         db = PETSc.Options()
@@ -207,6 +206,10 @@ class NonlinearSolver:
             db[f"{self.prefix}{key}"] = value
         self.snes.setFunction(self._residual, self._b)
         self._P = fem_petsc.create_matrix(self._J) if lagged_factorization else self._A
+        if self._near_nullspace:  # AMG reads the rigid-body modes from the preconditioner matrix
+            modes = rigid_body_modes(u.function_space)
+            self._A.setNearNullSpace(modes)
+            self._P.setNearNullSpace(modes)
         self.snes.setJacobian(self._jacobian, self._A, self._P)
         self.snes.setFromOptions()
         self.snes.getKSP().setFromOptions()
@@ -309,8 +312,10 @@ class NonlinearSolver:
 
     def destroy(self) -> None:
         """Free the PETSc objects."""
-        for obj in {self.snes, self._A, self._P, self._b, self._x}:
+        for obj in (self.snes, self._A, self._b, self._x):
             obj.destroy()
+        if self._P is not self._A:
+            self._P.destroy()
 
 
 def _reason_name(reason: int) -> str:

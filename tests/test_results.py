@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import json
 import math
+import mmap
 import os
 import re
+import subprocess
+import sys
 import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -251,9 +254,14 @@ def test_resource_monitor(comm_tmp: Path) -> None:
     hwm, rss = _hwm_rss_mb()
     nbytes = int((max(hwm - rss, 0.0) + 100.0) * MB)
     with mon.stage("alloc"):
-        block = np.ones(nbytes // 8)
-        assert block.sum() == nbytes // 8
+        # An anonymous mapping, touched page by page and unmapped at close: the memory goes back
+        # to the system for sure (a malloc'ed block may stay in the heap after earlier tests).
+        buf = mmap.mmap(-1, nbytes)
+        block = np.frombuffer(buf, dtype=np.uint8)
+        block[:] = 1
+        assert int(block[::4096].sum()) == len(block[::4096])
         del block
+        buf.close()
     with mon.stage("idle-after"):
         time.sleep(0.05)
     with mon.stage("busy"):
@@ -354,6 +362,19 @@ def test_blas_library_names_existing_file() -> None:
     path = re.search(r"(/\S+)", text).group(1)
     assert os.path.isfile(path), text
     assert "blas" in path.lower() or "mkl" in path.lower()
+
+
+def test_blas_library_does_not_initialise_petsc() -> None:
+    """Safe on one rank: PETSc's libraries are mapped, PETSc itself is not initialised."""
+    code = (
+        "import sys; from shoulder_fem.resources import blas_library; text = blas_library(); "
+        "assert 'petsc4py.PETSc' not in sys.modules; print(text)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert re.search(r"/\S*blas\S*", done.stdout), done.stdout
 
 
 def test_thread_settings(monkeypatch: pytest.MonkeyPatch) -> None:

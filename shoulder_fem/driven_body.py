@@ -26,6 +26,7 @@ from petsc4py import PETSc
 from .meshes.bar import ROOT, TIP, build_bar
 from .rigid import SpinUp
 from .scene import Scene, SceneError
+from .solver import StepperStats, march
 
 logger = logging.getLogger(__name__)
 
@@ -231,3 +232,161 @@ def log_progress(step: int, n_steps: int, t: float, omega: float, extra: str) ->
     every = max(1, n_steps // 20)
     if step <= 20 and n_steps <= 20 or step % every == 0 or step == n_steps:
         logger.info("step %d/%d  t = %.4g s  Ω = %.4g rad/s  %s", step, n_steps, t, omega, extra)
+
+
+class NewmarkState:
+    """The unknown displacement and the last step's state of the Newmark average-acceleration rule.
+
+    ``u`` is the unknown of the step; ``u_n, v_n, a_n`` the displacement, velocity and
+    acceleration at the start of the step. :meth:`acceleration` and :meth:`velocity` are the
+    rule's end-of-step values as UFL expressions of ``u`` (for the residual); :meth:`advance`
+    applies the same rule to the arrays once the step has converged.
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, name: str):
+        self.u = dolfinx.fem.Function(V, name=name)
+        self.u_n, self.v_n, self.a_n = (dolfinx.fem.Function(V) for _ in range(3))
+
+    def acceleration(self, dt):
+        """a_{n+1} = (u − u_n − Δt v_n)/(βΔt²) − (1/(2β) − 1) a_n (UFL, ``dt`` a Constant)."""
+        beta = NEWMARK_BETA
+        return (self.u - self.u_n - dt * self.v_n) / (beta * dt**2) - (
+            1.0 / (2 * beta) - 1.0
+        ) * self.a_n
+
+    def velocity(self, dt):
+        """v_{n+1} = v_n + Δt((1 − γ) a_n + γ a_{n+1}) (UFL)."""
+        gamma = NEWMARK_GAMMA
+        return self.v_n + dt * ((1 - gamma) * self.a_n + gamma * self.acceleration(dt))
+
+    def advance(self, h: float, dynamic: bool = True) -> None:
+        """Make the converged ``u`` the start of the next step (Δt = ``h`` s)."""
+        beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
+        u, u_n, v_n, a_n = (f.x.array for f in (self.u, self.u_n, self.v_n, self.a_n))
+        if dynamic:
+            a_next = (u - u_n - h * v_n) / (beta * h**2) - (1.0 / (2 * beta) - 1.0) * a_n
+            v_n[:] += h * ((1 - gamma) * a_n + gamma * a_next)
+            a_n[:] = a_next
+        u_n[:] = u
+
+    def save(self) -> list[np.ndarray]:
+        """A snapshot of the four arrays (for a step cut-back)."""
+        return [f.x.array.copy() for f in (self.u, self.u_n, self.v_n, self.a_n)]
+
+    def restore(self, snapshot: list[np.ndarray]) -> None:
+        """Put a :meth:`save` snapshot back."""
+        for f, arr in zip((self.u, self.u_n, self.v_n, self.a_n), snapshot, strict=True):
+            f.x.array[:] = arr
+
+
+def march_driven_body(
+    model: DrivenBody,
+    recorder,
+    monitor,
+    fields_dir,
+    state: NewmarkState,
+    solver,
+    advance,
+    outputs: BodyOutputs,
+    snapshot,
+    last: dict,
+    frame=None,
+) -> None:
+    """The time loop both methods share: step, record, write fields, log; probes at the end.
+
+    Args:
+        model: the driven body.
+        recorder: the run's :class:`~shoulder_fem.results.Recorder`.
+        monitor: the run's :class:`~shoulder_fem.resources.ResourceMonitor` (sampled per step).
+        fields_dir: folder of the XDMF files.
+        state: the Newmark state (saved and restored around a step cut-back).
+        solver: the method's solver (for its counters).
+        outputs: the body-frame measures.
+        advance: ``advance(t0, t1)`` solves one step and stores the clamp reaction (body frame,
+            N) in ``last["reaction"]``.
+        snapshot: ``snapshot(t)`` returns the displacement Functions to write at time ``t``.
+        last: shared state; this function keeps ``t`` and ``step`` in it.
+        frame: ``frame(t)`` sets whatever the body-frame measures need at time ``t``.
+    """
+    from .results import FieldWriter
+
+    comm = model.mesh.comm
+    writer = FieldWriter(comm, model.mesh, fields_dir / "displacement.xdmf")
+    stress_writer = FieldWriter(comm, model.mesh, fields_dir / "stress.xdmf")
+    field_times = set(np.round(model.field_times, 12))
+    last.update(t=model.times[0], step=0)
+    last.setdefault("reaction", np.zeros(3))
+
+    def record(t: float) -> None:
+        last["t"] = t
+        if frame is not None:
+            frame(t)
+        recorder.add_series_point("tip_deflection", t, outputs.tip_deflection(), "s", "m")
+        recorder.add_series_point(
+            "root_axial_stress", t, -last["reaction"][0] / model.area, "s", "Pa"
+        )
+        recorder.add_series_point("spin_rate", t, model.motion.rate(t), "s", "rad/s")
+        if round(t, 12) in field_times:
+            writer.write(snapshot(t), t)
+            stress_writer.write(outputs.update_fields(), t)
+        monitor.sample()
+        history = solver.stats.history
+        log_progress(
+            last["step"],
+            len(model.times) - 1,
+            t,
+            model.motion.rate(t),
+            f"Newton {history[-1] if history else 0}, factorizations {solver.stats.factorizations}",
+        )
+        last["step"] += 1
+
+    stats = StepperStats()
+    record(model.times[0])
+    try:
+        march(model.times, advance, state.save, state.restore, on_step=record, stats=stats)
+    finally:
+        writer.close()
+        stress_writer.close()
+        if frame is not None:
+            frame(last["t"])
+        finish_probes(model, recorder, outputs, last)
+        solver_counts(recorder, solver, stats)
+
+
+def finish_probes(model: DrivenBody, recorder, outputs: BodyOutputs, last: dict) -> None:
+    """Probes of the last completed step (also after a failed step: the completed steps stand).
+
+    ``root_axial_stress`` is the clamp's consistent axial reaction divided by the section area
+    (Pa); ``axial_stress_profile`` the section-averaged σ_xx at each layer's mid-plane.
+    """
+    centres, profile = outputs.axial_stress_profile()
+    recorder.set_series("axial_stress_profile", centres, profile, "m", "Pa")
+    recorder.set_series(
+        "axial_stress_profile_analytic",
+        centres,
+        model.analytic_axial_stress(centres, model.motion.rate(last["t"])),
+        "m",
+        "Pa",
+    )
+    recorder.set_probe("root_axial_stress", -last["reaction"][0] / model.area, "Pa")
+    recorder.set_probe("tip_deflection_final", outputs.tip_deflection(), "m")
+    recorder.set_probe("final_time", last["t"], "s")
+    series = np.asarray(recorder.series["tip_deflection"]["y"])
+    peak = int(np.argmax(np.abs(series)))
+    recorder.set_probe("peak_tip_deflection", float(series[peak]), "m")
+    recorder.set_probe("peak_time", float(recorder.series["tip_deflection"]["x"][peak]), "s")
+    recorder.set_probe(
+        "root_axial_stress_analytic",
+        float(model.analytic_axial_stress(model.inner_radius, model.motion.rate(last["t"]))),
+        "Pa",
+    )
+
+
+def solver_counts(recorder, solver, stats: StepperStats) -> None:
+    """Copy the solver and stepper counters into the summary."""
+    recorder.count("steps", stats.steps)
+    recorder.count("cutbacks", stats.cutbacks)
+    recorder.count("newton_iterations", solver.stats.newton_iterations)
+    recorder.count("linear_solves", solver.stats.linear_solves)
+    recorder.count("factorizations", solver.stats.factorizations)
+    recorder.extra("krylov_iterations", solver.stats.krylov_iterations)

@@ -24,22 +24,20 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..driven_body import (
-    NEWMARK_BETA,
-    NEWMARK_GAMMA,
     BodyOutputs,
     DrivenBody,
+    NewmarkState,
     boundary_reaction,
     clamp_dofs,
     constant,
     dof_coordinates,
-    log_progress,
+    march_driven_body,
     quadrature,
     vector_space,
 )
 from ..forms import kinematics, materials, rigid_body
 from ..forms import virtual_power as vp
-from ..solver import NonlinearSolver, StepperStats, march
-from .coupled import finish_probes, solver_counts
+from ..solver import NonlinearSolver
 
 logger = logging.getLogger(__name__)
 
@@ -57,8 +55,6 @@ def centre_of_mass(mesh, rho: float, dx) -> tuple[float, np.ndarray]:
 
 def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=None) -> None:
     """Run the decoupled method on a driven body; results go to ``recorder`` and ``fields_dir``."""
-    from ..results import FieldWriter
-
     mesh = model.mesh
     comm = mesh.comm
     V = vector_space(model)
@@ -66,7 +62,6 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
     w = ufl.TestFunction(V)
     dx = ufl.Measure("dx", domain=mesh, metadata=quadrature(model))
     rho = model.density
-    beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
     quasi_static = model.quasi_static
 
     # Part 1: the rigid motion (the hub's) and the body's mass properties about G.
@@ -84,8 +79,8 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
         a_g.value[:] = np.cross(dwv, x_g) + np.cross(wv, np.cross(wv, x_g))  # G turns about O
 
     # Part 2: eq. (13), linear, in the floating frame.
-    u = dolfinx.fem.Function(V, name="strain_displacement")
-    u_n, v_n, a_n = (dolfinx.fem.Function(V) for _ in range(3))
+    state = NewmarkState(V, "strain_displacement")
+    u = state.u
     nominal_dt = model.times[1] - model.times[0]
     dt = constant(mesh, nominal_dt)
     material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
@@ -93,11 +88,8 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
         rho, a_g, omega, domega, gm, w, dx
     )
     if not quasi_static:
-        a_new = (u - u_n - dt * v_n) / (beta * dt**2) - (1.0 / (2 * beta) - 1.0) * a_n
-        v_new = v_n + dt * ((1 - gamma) * a_n + gamma * a_new)
-        residual += vp.relative_inertia(rho, a_new, w, dx) + vp.coriolis_inertia(
-            rho, omega, v_new, w, dx
-        )
+        residual += vp.relative_inertia(rho, state.acceleration(dt), w, dx)
+        residual += vp.coriolis_inertia(rho, omega, state.velocity(dt), w, dx)
     last: dict = {"dt_key": 1.0}
     dofs = clamp_dofs(model, V)
     zero = dolfinx.fem.Function(V)
@@ -150,7 +142,7 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
     residual_form = dolfinx.fem.form(residual, form_compiler_params=quadrature(model))
     outputs = BodyOutputs(model, u, material.stress(kinematics.linear_strain(u)))
     Xd = dof_coordinates(V)
-    last.update(t=model.times[0], step=0, reaction=np.zeros(3), operator=None)
+    last["operator"] = None
 
     def advance(t0: float, t1: float) -> None:
         h = t1 - t0
@@ -166,57 +158,20 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
             last["operator"] = key
         solver.solve(step=f"t = {t1:.6g} s")
         last["reaction"] = boundary_reaction(residual_form, dofs, comm)
-        if not quasi_static:
-            a_next = (u.x.array - u_n.x.array - h * v_n.x.array) / (beta * h**2) - (
-                1.0 / (2 * beta) - 1.0
-            ) * a_n.x.array
-            v_n.x.array[:] += h * ((1 - gamma) * a_n.x.array + gamma * a_next)
-            a_n.x.array[:] = a_next
-        u_n.x.array[:] = u.x.array
+        state.advance(h, dynamic=not quasi_static)
 
-    def save():
-        return [f.x.array.copy() for f in (u, u_n, v_n, a_n)]
-
-    def restore(snapshot) -> None:
-        for f, arr in zip((u, u_n, v_n, a_n), snapshot, strict=True):
-            f.x.array[:] = arr
-
-    writer = FieldWriter(comm, mesh, fields_dir / "displacement.xdmf")
-    stress_writer = FieldWriter(comm, mesh, fields_dir / "stress.xdmf")
-    field_times = set(np.round(model.field_times, 12))
     inertial_u = dolfinx.fem.Function(V, name="displacement")
 
-    def record(t: float) -> None:
-        last["t"] = t
-        recorder.add_series_point("tip_deflection", t, outputs.tip_deflection(), "s", "m")
-        recorder.add_series_point(
-            "root_axial_stress", t, -last["reaction"][0] / model.area, "s", "Pa"
-        )
-        recorder.add_series_point("spin_rate", t, model.motion.rate(t), "s", "rad/s")
-        if round(t, 12) in field_times:
-            r = model.motion.rotation(t)  # x = R (X + ũ): the inertial displacement for ParaView
-            inertial_u.x.array[:] = ((Xd + u.x.array.reshape(-1, 3)) @ r.T - Xd).ravel()
-            writer.write([inertial_u, u], t)
-            stress_writer.write(outputs.update_fields(), t)
-        monitor.sample()
-        log_progress(
-            last["step"],
-            len(model.times) - 1,
-            t,
-            model.motion.rate(t),
-            f"factorizations {solver.stats.factorizations}",
-        )
-        last["step"] += 1
+    def snapshot(t: float) -> list:
+        r = model.motion.rotation(t)  # x = R (X + ũ): the inertial displacement for ParaView
+        inertial_u.x.array[:] = ((Xd + u.x.array.reshape(-1, 3)) @ r.T - Xd).ravel()
+        return [inertial_u, u]
 
-    stats = StepperStats()
-    record(model.times[0])
     try:
-        march(model.times, advance, save, restore, on_step=record, stats=stats)
+        march_driven_body(
+            model, recorder, monitor, fields_dir, state, solver, advance, outputs, snapshot, last
+        )
     finally:
-        for w_ in (writer, stress_writer):
-            w_.close()
-        finish_probes(model, recorder, outputs, last)
-        solver_counts(recorder, solver, stats)
         for entry in parts.values():
             for mat in entry:
                 if mat is not None:

@@ -170,8 +170,8 @@ class Hyperelastic:
 
 
 @dataclass(frozen=True)
-class LinearElastic:
-    """Isotropic linear elasticity (small strain): sigma = lmbda tr(eps) I + 2 mu eps.
+class _YoungPoisson:
+    """Isotropic moduli given as Young's modulus and Poisson's ratio (checked on creation).
 
     Attributes:
         youngs_modulus: E in Pa; a number or a UFL field such as ``bone_modulus(rho)``.
@@ -194,6 +194,16 @@ class LinearElastic:
         lmbda, mu = self.lame()
         return mu, lmbda + 2 * mu / 3
 
+
+@dataclass(frozen=True)
+class LinearElastic(_YoungPoisson):
+    """Isotropic linear elasticity (small strain): sigma = lmbda tr(eps) I + 2 mu eps.
+
+    Attributes:
+        youngs_modulus: E in Pa; a number or a UFL field such as ``bone_modulus(rho)``.
+        poisson_ratio: nu, dimensionless, in (-1, 0.5).
+    """
+
     def stress(self, eps: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
         """Cauchy stress sigma(eps), Pa.
 
@@ -214,7 +224,7 @@ class LinearElastic:
 
 
 @dataclass(frozen=True)
-class SaintVenantKirchhoff(Hyperelastic):
+class SaintVenantKirchhoff(_YoungPoisson, Hyperelastic):
     """Saint Venant-Kirchhoff: the linear law written in the Green-Lagrange strain E.
 
     W = lmbda/2 (tr E)^2 + mu E:E. Valid for large rotations with small strains.
@@ -223,22 +233,6 @@ class SaintVenantKirchhoff(Hyperelastic):
         youngs_modulus: E in Pa; a number or a UFL field.
         poisson_ratio: nu, dimensionless, in (-1, 0.5).
     """
-
-    youngs_modulus: Scalar
-    poisson_ratio: Scalar
-
-    def __post_init__(self) -> None:
-        _check_positive("youngs_modulus", self.youngs_modulus, "Pa")
-        _check_poisson("poisson_ratio", self.poisson_ratio)
-
-    def lame(self) -> tuple[Scalar, Scalar]:
-        """Lame constants (lmbda, mu), Pa."""
-        return _lame(self.youngs_modulus, self.poisson_ratio)
-
-    def small_strain_moduli(self) -> tuple[Scalar, Scalar]:
-        """(shear modulus mu, bulk modulus lmbda + 2 mu/3), Pa."""
-        lmbda, mu = self.lame()
-        return mu, lmbda + 2 * mu / 3
 
     def strain_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
         """W(C) = lmbda/2 (tr E)^2 + mu E:E with E = (C - I)/2, J/m^3."""

@@ -194,6 +194,11 @@ class NonlinearSolver:
         if linear:
             opts["snes_type"] = "ksponly"
         opts.update(options or {})
+        if lagged_factorization and opts.get("ksp_type") in ("preonly", "cg"):
+            # A stale factorization applied once (preonly) would silently give a wrong answer,
+            # and the drifting operator need not be symmetric (cg): iterate with GMRES.
+            opts["ksp_type"] = "gmres"
+            opts.setdefault("ksp_rtol", 1e-12)
         self._near_nullspace = near_nullspace or opts.get("pc_type") == "gamg"
         self._operator_changed = True
         self.stats = SolveStats()

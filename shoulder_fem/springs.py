@@ -62,7 +62,9 @@ class Spring:
         if pa.shape != (3,) or pb.shape != (3,) or not np.all(np.isfinite(np.r_[pa, pb])):
             raise ValueError(f"spring '{self.name}': point_a and point_b must be finite 3-vectors")
         if not (math.isfinite(self.stiffness) and self.stiffness > 0):
-            raise ValueError(f"spring '{self.name}': stiffness must be > 0 N/m, got {self.stiffness}")
+            raise ValueError(
+                f"spring '{self.name}': stiffness must be > 0 N/m, got {self.stiffness}"
+            )
         if self.body_a == self.body_b:
             raise ValueError(f"spring '{self.name}': both ends on '{self.body_a}'")
         length0 = float(np.linalg.norm(pa - pb))

@@ -6,7 +6,10 @@ for the straining displacement ũ (body-frame components), linear elastic, clamp
 
     ∫σ(ε(ũ)):ε(w) + ∫ρ(ũ̈ + 2Ω×ũ̇)·w + ∫ρ(a_G + Ω̇×GM + Ω×(Ω×GM))·w = 0,
 
-GM taken at the rigid (undeformed) position as in the paper. Time integration is the same
+GM taken at the rigid (undeformed) position as in the paper. ũ is written in body-frame
+components, so its relative velocity and acceleration are plain time derivatives of those
+components; the paper's Jaumann estimate v̇_B ≈ ṽ̇ − Ω×ṽ is what the same quantity looks like
+when ṽ is carried in inertial components, and is not needed here. Time integration is the same
 Newmark average-acceleration rule as the coupled method. The operator K + M/(βΔt²) + Coriolis
 changes only when Ω or Δt does: it is re-assembled and re-factorized then, and the same LU
 serves every step at constant spin. With ``quasi_static`` the ũ̈ and Coriolis terms are dropped

@@ -42,6 +42,7 @@ __all__ = [
     "centrifugal_inertia",
     "coriolis_inertia",
     "euler_inertia",
+    "geometric_stiffness",
     "inertia_power",
     "internal_power_finite",
     "internal_power_linear",
@@ -211,3 +212,19 @@ def inertia_power(rho: Scalar, a: Vector, w: Vector, dx: ufl.Measure) -> ufl.For
         dx: Cell measure.
     """
     return rho * ufl.dot(a, w) * dx
+
+
+def geometric_stiffness(prestress, u: Vector, w: Vector, dx: ufl.Measure) -> ufl.Form:
+    """Geometric stiffness of a prestress σ0 (stress stiffening), int σ0 : (grad u)ᵀ grad w dx.
+
+    The second-order work of an initial stress on a small displacement: in index form
+    σ0_ij ∂_i u_k ∂_j w_k. Added to the linear internal power it stiffens a body in tension
+    (a spinning beam's bending frequency rises with its centrifugal prestress).
+
+    Args:
+        prestress: σ0, Pa (a UFL tensor, e.g. the stress of a previous linear solution).
+        u: Displacement, m.
+        w: Virtual velocity (test field).
+        dx: Cell measure.
+    """
+    return ufl.inner(ufl.grad(u) * prestress, ufl.grad(w)) * dx

@@ -30,6 +30,16 @@ from .solver import StepperStats, march
 
 logger = logging.getLogger(__name__)
 
+#: Spin axes of the ``spin_axis`` parameter: across the bar (z: in-plane bending in x–y, the
+#: spinning bar and the spin-up beam) or about the bar's own axis (x: a humerus in internal
+#: rotation).
+SPIN_AXES = {"transverse": (0.0, 0.0, 1.0), "axial": (1.0, 0.0, 0.0)}
+
+#: Decoupled variants: the paper's eq. (13) as published; the rigid-frame inertia evaluated at the
+#: strained position (spin softening); and that plus the geometric stiffness of the centrifugal
+#: prestress (stress stiffening).
+VARIANTS = ("paper", "spin-softening", "stress-stiffening")
+
 #: Newmark average-acceleration parameters (trapezoidal rule: second order, no numerical
 #: dissipation, unconditionally stable for linear problems).
 NEWMARK_BETA = 0.25
@@ -56,6 +66,12 @@ class DrivenBody:
     times: np.ndarray
     field_times: np.ndarray
     quasi_static: bool
+    variant: str = "paper"
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit spin axis (body = inertial components at t = 0), through the origin."""
+        return self.motion.axis
 
     @property
     def area(self) -> float:
@@ -110,10 +126,13 @@ def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> Driven
         inner_radius=p["inner_radius"],
         outer_radius=p["outer_radius"],
         side=p["side"],
-        motion=SpinUp(p["spin_rate"], p["spin_up_time"]),
+        motion=SpinUp(
+            p["spin_rate"], p["spin_up_time"], axis=SPIN_AXES[p.get("spin_axis", "transverse")]
+        ),
         times=times,
         field_times=times[field_idx],
         quasi_static=bool(p["quasi_static"]),
+        variant=p.get("decoupled_variant", "paper"),
     )
 
 
@@ -193,6 +212,12 @@ class BodyOutputs:
         centres = 0.5 * (self.layer_edges[:-1] + self.layer_edges[1:])
         return centres, sums / self._layer_cells
 
+    def max_von_mises(self) -> float:
+        """Largest cell value of the von Mises stress from the last :meth:`update_fields` (Pa)."""
+        n_owned = self.model.mesh.topology.index_map(3).size_local
+        local = float(np.max(self.von_mises.x.array[:n_owned])) if n_owned else 0.0
+        return self.comm.allreduce(local, op=MPI.MAX)
+
     def update_fields(self) -> list[dolfinx.fem.Function]:
         """Evaluate the stress fields (collective); returns them for writing."""
         self.axial_stress.interpolate(self._sxx_expr)
@@ -205,21 +230,33 @@ def constant(mesh: dolfinx.mesh.Mesh, value) -> dolfinx.fem.Constant:
     return dolfinx.fem.Constant(mesh, PETSc.ScalarType(np.asarray(value, dtype=float)))
 
 
-def boundary_reaction(residual: dolfinx.fem.FormMetaClass, dofs: np.ndarray, comm) -> np.ndarray:
-    """Force (N, 3 components) the supports exert on ``dofs``: the residual summed over them.
+def boundary_reaction(
+    residual: dolfinx.fem.FormMetaClass,
+    dofs: np.ndarray,
+    comm,
+    coords: np.ndarray,
+    rotation: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Force (N) and moment about the origin (N·m) the supports exert on ``dofs``, body frame.
 
     With R = P_int + P_acc − P_ext assembled without boundary conditions, the components at the
     clamped DOFs are the forces the clamp must apply to the body (variationally consistent
-    reactions); summed, they are the clamp's resultant.
+    reactions). ``coords`` are the DOFs' reference (body-frame) positions; the clamped nodes sit
+    there in the body frame. ``rotation`` (body → inertial) turns inertial-frame residuals into
+    body-frame forces.
     """
     vec = dolfinx.fem.petsc.assemble_vector(residual)
     vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     bs = 3
     n_owned = vec.getLocalSize() // bs
     owned = dofs[dofs < n_owned]
-    local = vec.array.reshape(-1, bs)[owned].sum(axis=0)
+    forces = vec.array.reshape(-1, bs)[owned]
     vec.destroy()
-    return comm.allreduce(local, op=MPI.SUM)
+    if rotation is not None:
+        forces = forces @ rotation  # rows fᵀR = (Rᵀf)ᵀ
+    local = np.concatenate([forces.sum(axis=0), np.cross(coords[owned], forces).sum(axis=0)])
+    total = comm.allreduce(local, op=MPI.SUM)
+    return total[:3], total[3:]
 
 
 def dof_coordinates(V: dolfinx.fem.FunctionSpace) -> np.ndarray:
@@ -291,6 +328,7 @@ def march_driven_body(
     snapshot,
     last: dict,
     frame=None,
+    extra_record=None,
 ) -> None:
     """The time loop both methods share: step, record, write fields, log; probes at the end.
 
@@ -307,6 +345,7 @@ def march_driven_body(
         snapshot: ``snapshot(t)`` returns the displacement Functions to write at time ``t``.
         last: shared state; this function keeps ``t`` and ``step`` in it.
         frame: ``frame(t)`` sets whatever the body-frame measures need at time ``t``.
+        extra_record: ``extra_record(t)`` records method-specific series after each step.
     """
     from .results import FieldWriter
 
@@ -316,6 +355,7 @@ def march_driven_body(
     field_times = set(np.round(model.field_times, 12))
     last.update(t=model.times[0], step=0)
     last.setdefault("reaction", np.zeros(3))
+    last.setdefault("moment", np.zeros(3))
 
     def record(t: float) -> None:
         last["t"] = t
@@ -329,6 +369,9 @@ def march_driven_body(
         if round(t, 12) in field_times:
             writer.write(snapshot(t), t)
             stress_writer.write(outputs.update_fields(), t)
+            recorder.add_series_point("max_von_mises", t, outputs.max_von_mises(), "s", "Pa")
+        if extra_record is not None:
+            extra_record(t)
         monitor.sample()
         history = solver.stats.history
         log_progress(
@@ -369,6 +412,12 @@ def finish_probes(model: DrivenBody, recorder, outputs: BodyOutputs, last: dict)
         "Pa",
     )
     recorder.set_probe("root_axial_stress", -last["reaction"][0] / model.area, "Pa")
+    # The moment the hub applies to the body (about the origin, body frame) and its component
+    # along the spin axis: the driving torque.
+    recorder.set_probe("root_moment", last["moment"], "N*m")
+    recorder.set_probe("root_torque", float(last["moment"] @ model.axis), "N*m")
+    vm = recorder.series.get("max_von_mises", {}).get("y", [])
+    recorder.set_probe("max_von_mises", float(max(vm)) if vm else 0.0, "Pa")
     recorder.set_probe("tip_deflection_final", outputs.tip_deflection(), "m")
     recorder.set_probe("final_time", last["t"], "s")
     series = np.asarray(recorder.series["tip_deflection"]["y"])

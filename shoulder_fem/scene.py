@@ -88,9 +88,16 @@ class Parameter:
     file_unit: str
     bounds: dict = field(default_factory=dict)
     doc: str = ""
+    choices: tuple[str, ...] = ()
 
     def checked(self, value, where: str) -> Parameter:
         """Return a copy holding ``value`` (SI) after checking its type and bounds."""
+        if isinstance(self.value, str):
+            if value not in self.choices:
+                raise SceneError(
+                    f"{where}: {self.name} = {value!r}: expected one of {', '.join(self.choices)}"
+                )
+            return replace(self, value=value)
         if isinstance(self.value, bool):
             if not isinstance(value, bool):
                 raise SceneError(f"{where}: {self.name} = {value!r}: expected true or false")
@@ -206,6 +213,8 @@ class Scene:
 
 def _parse_value(param: Parameter, raw: str, where: str):
     raw = raw.strip()
+    if isinstance(param.value, str):
+        return raw
     if isinstance(param.value, bool):
         if raw.lower() in ("true", "1", "yes", "on"):
             return True
@@ -285,9 +294,15 @@ def _parameter_from_spec(name: str, spec, source: str) -> Parameter:
     if not isinstance(spec, dict) or "value" not in spec:
         raise SceneError(f"{where}: expected a table with at least 'value' (and 'unit')")
     value = spec["value"]
-    unknown = set(spec) - {"value", "unit", "doc", *_BOUNDS}
+    unknown = set(spec) - {"value", "unit", "doc", "choices", *_BOUNDS}
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    if isinstance(value, str):
+        choices = spec.get("choices")
+        if not choices or not all(isinstance(c, str) for c in choices):
+            raise SceneError(f"{where}: a text value needs 'choices', a list of strings")
+        proto = Parameter(name, value, "", "", {}, spec.get("doc", ""), tuple(choices))
+        return proto.checked(value, where)
     if isinstance(value, bool) or (isinstance(value, int) and "unit" not in spec):
         file_unit, si_unit, factor = "", "", 1
     else:

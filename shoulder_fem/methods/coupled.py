@@ -85,7 +85,9 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
         u.x.array[:] = (x_prev @ (r1 @ r0.T).T - Xd).ravel()  # rotate the last configuration
         solver.solve(step=f"t = {t1:.6g} s")
         # Clamp reaction now, while the Newmark acceleration in the form is this step's.
-        last["reaction"] = r1.T @ boundary_reaction(residual_form, dofs, comm)
+        last["reaction"], last["moment"] = boundary_reaction(
+            residual_form, dofs, comm, Xd, rotation=r1
+        )
         state.advance(t1 - t0)
 
     body_u = dolfinx.fem.Function(V, name="strain_displacement")

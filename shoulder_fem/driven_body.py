@@ -40,10 +40,21 @@ SPIN_AXES = {"transverse": (0.0, 0.0, 1.0), "axial": (1.0, 0.0, 0.0)}
 #: prestress (stress stiffening).
 VARIANTS = ("paper", "spin-softening", "stress-stiffening")
 
-#: Newmark average-acceleration parameters (trapezoidal rule: second order, no numerical
-#: dissipation, unconditionally stable for linear problems).
-NEWMARK_BETA = 0.25
-NEWMARK_GAMMA = 0.5
+
+def newmark_parameters(damping: float) -> tuple[float, float]:
+    """Newmark (β, γ) for a numerical damping δ = γ − 1/2 ≥ 0, with β = (γ + 1/2)²/4.
+
+    δ = 0 is the average-acceleration (trapezoidal) rule: second order, no numerical
+    dissipation, unconditionally stable for linear problems — but not energy-stable for stiff
+    nonlinear elastodynamics, where unresolved axial–bending modes can pump energy until Newton
+    fails (a slender spinning beam does this). δ > 0 damps the high frequencies (the β above is
+    the choice with the most high-frequency dissipation); the scheme is then first order, with a
+    damping ratio ≈ δ ω Δt / 2 on a mode of frequency ω.
+    """
+    if not damping >= 0.0:
+        raise ValueError(f"numerical_damping = {damping}: must be >= 0")
+    gamma = 0.5 + damping
+    return (gamma + 0.5) ** 2 / 4.0, gamma
 
 
 @dataclass
@@ -67,6 +78,7 @@ class DrivenBody:
     field_times: np.ndarray
     quasi_static: bool
     variant: str = "paper"
+    numerical_damping: float = 0.0
 
     @property
     def axis(self) -> np.ndarray:
@@ -133,6 +145,7 @@ def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> Driven
         field_times=times[field_idx],
         quasi_static=bool(p["quasi_static"]),
         variant=p.get("decoupled_variant", "paper"),
+        numerical_damping=p.get("numerical_damping", 0.0),
     )
 
 
@@ -272,7 +285,7 @@ def log_progress(step: int, n_steps: int, t: float, omega: float, extra: str) ->
 
 
 class NewmarkState:
-    """The unknown displacement and the last step's state of the Newmark average-acceleration rule.
+    """The unknown displacement and the last step's state of the Newmark rule.
 
     ``u`` is the unknown of the step; ``u_n, v_n, a_n`` the displacement, velocity and
     acceleration at the start of the step. :meth:`acceleration` and :meth:`velocity` are the
@@ -280,25 +293,26 @@ class NewmarkState:
     applies the same rule to the arrays once the step has converged.
     """
 
-    def __init__(self, V: dolfinx.fem.FunctionSpace, name: str):
+    def __init__(self, V: dolfinx.fem.FunctionSpace, name: str, damping: float = 0.0):
+        self.beta, self.gamma = newmark_parameters(damping)
         self.u = dolfinx.fem.Function(V, name=name)
         self.u_n, self.v_n, self.a_n = (dolfinx.fem.Function(V) for _ in range(3))
 
     def acceleration(self, dt):
         """a_{n+1} = (u − u_n − Δt v_n)/(βΔt²) − (1/(2β) − 1) a_n (UFL, ``dt`` a Constant)."""
-        beta = NEWMARK_BETA
+        beta = self.beta
         return (self.u - self.u_n - dt * self.v_n) / (beta * dt**2) - (
             1.0 / (2 * beta) - 1.0
         ) * self.a_n
 
     def velocity(self, dt):
         """v_{n+1} = v_n + Δt((1 − γ) a_n + γ a_{n+1}) (UFL)."""
-        gamma = NEWMARK_GAMMA
+        gamma = self.gamma
         return self.v_n + dt * ((1 - gamma) * self.a_n + gamma * self.acceleration(dt))
 
     def advance(self, h: float, dynamic: bool = True) -> None:
         """Make the converged ``u`` the start of the next step (Δt = ``h`` s)."""
-        beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
+        beta, gamma = self.beta, self.gamma
         u, u_n, v_n, a_n = (f.x.array for f in (self.u, self.u_n, self.v_n, self.a_n))
         if dynamic:
             a_next = (u - u_n - h * v_n) / (beta * h**2) - (1.0 / (2 * beta) - 1.0) * a_n

@@ -10,7 +10,8 @@ GM taken at the rigid (undeformed) position as in the paper. ũ is written in bo
 components, so its relative velocity and acceleration are plain time derivatives of those
 components; the paper's Jaumann estimate v̇_B ≈ ṽ̇ − Ω×ṽ is what the same quantity looks like
 when ṽ is carried in inertial components, and is not needed here. Time integration is the same
-Newmark average-acceleration rule as the coupled method. The operator K + M/(βΔt²) + Coriolis
+Newmark rule as the coupled method (average acceleration unless the scene asks for numerical
+damping). The operator K + M/(βΔt²) + Coriolis
 changes only when Ω or Δt does: it is re-assembled and re-factorized then, and the same LU
 serves every step at constant spin. With ``quasi_static`` the ũ̈ and Coriolis terms are dropped
 and one factorization serves the whole run.
@@ -94,7 +95,7 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
     # Part 2: eq. (13), linear, in the floating frame; the variants evaluate the rigid-frame
     # inertia at the strained position GM + ũ, and add the centrifugal prestress's geometric
     # stiffness.
-    state = NewmarkState(V, "strain_displacement")
+    state = NewmarkState(V, "strain_displacement", model.numerical_damping)
     u = state.u
     nominal_dt = model.times[1] - model.times[0]
     dt = constant(mesh, nominal_dt)

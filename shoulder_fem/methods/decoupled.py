@@ -202,11 +202,24 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
         inertial_u.x.array[:] = ((Xd + u.x.array.reshape(-1, 3)) @ r.T - Xd).ravel()
         return [inertial_u, u]
 
+    # What the linear part neglects of eq. (13) itself: the centrifugal terms on ũ against the
+    # elastic ones, Ω²∫ρ|ũ⊥|² / ∫σ(ũ):ε(ũ) — a Rayleigh-quotient estimate of (Ω/ω)² for the
+    # current deformation shape ω.
+    spin_energy = dolfinx.fem.form(rho * ufl.dot(ufl.cross(omega, u), ufl.cross(omega, u)) * dx)
+    strain_energy = dolfinx.fem.form(
+        ufl.inner(material.stress(kinematics.linear_strain(u)), kinematics.linear_strain(u)) * dx
+    )
+
+    def total(form) -> float:
+        return comm.allreduce(dolfinx.fem.assemble_scalar(form), op=MPI.SUM)
+
     def record_indicator(t: float) -> None:
         value = indicator.evaluate(
             state, model.motion.omega_vector(t), model.motion.domega_vector(t)
         )
         recorder.add_series_point("decoupling_indicator", t, value, "s", "1")
+        recorder.add_series_point("spin_energy", t, total(spin_energy), "s", "J")
+        recorder.add_series_point("strain_energy", t, total(strain_energy), "s", "J")
         if value > INDICATOR_WARNING and not last.get("warned"):
             last["warned"] = True
             logger.warning(
@@ -234,9 +247,24 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
     finally:
         series = recorder.series.get("decoupling_indicator", {}).get("y", [0.0])
         recorder.set_probe("max_decoupling_indicator", float(max(series)), "1")
+        recorder.set_probe("max_spin_stiffness_ratio", spin_stiffness_ratio(recorder), "1")
         for mats in parts.values():
             for mat in mats:
                 mat.destroy()
+
+
+def spin_stiffness_ratio(recorder) -> float:
+    """Largest Ω²∫ρ|ũ⊥|² / ∫σ:ε over the steps whose strain energy is ≥ 1 % of its maximum.
+
+    Small: the centrifugal terms the paper's linear eq. (13) leaves out are negligible. Near or
+    above 1: the spin reaches the deformation's own frequency and the variants part ways.
+    """
+    spin = np.asarray(recorder.series.get("spin_energy", {}).get("y", []), dtype=float)
+    elastic = np.asarray(recorder.series.get("strain_energy", {}).get("y", []), dtype=float)
+    if not len(elastic) or not np.isfinite(elastic).all() or elastic.max() <= 0.0:
+        return 0.0
+    keep = elastic >= 0.01 * elastic.max()
+    return float(np.max(spin[keep] / elastic[keep]))
 
 
 #: Above this value of the decoupling indicator a warning is logged.

@@ -11,10 +11,20 @@ components, so its relative velocity and acceleration are plain time derivatives
 components; the paper's Jaumann estimate v̇_B ≈ ṽ̇ − Ω×ṽ is what the same quantity looks like
 when ṽ is carried in inertial components, and is not needed here. Time integration is the same
 Newmark rule as the coupled method (average acceleration unless the scene asks for numerical
-damping). The operator K + M/(βΔt²) + Coriolis
-changes only when Ω or Δt does: it is re-assembled and re-factorized then, and the same LU
-serves every step at constant spin. With ``quasi_static`` the ũ̈ and Coriolis terms are dropped
-and one factorization serves the whole run.
+damping).
+
+Variants (``decoupled_variant``): ``paper`` as above; ``spin-softening`` evaluates the Euler and
+centrifugal terms at the strained position GM + ũ; ``stress-stiffening`` adds the geometric
+stiffness of the centrifugal prestress ω²σ1 (σ1 from one static solve at ω = 1 rad/s).
+
+The operator is A0 + ωG + ω²Q + ω̇E about the fixed spin axis: the four parts are assembled
+once per Δt and combined per step (no re-assembly), and GMRES preconditioned by the LU of an
+earlier operator absorbs the drift; a new factorization is made only when GMRES needs more than
+a few iterations (``solver.factorizations`` in summary.json counts them: 1 for the runs here).
+With ``quasi_static`` the ũ̈ and Coriolis terms are dropped.
+
+After each step the run records the decoupling indicator (:class:`DecouplingIndicator`) and
+the energies behind the spin-stiffness ratio (:func:`spin_stiffness_ratio`).
 """
 
 from __future__ import annotations

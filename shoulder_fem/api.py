@@ -35,7 +35,7 @@ class Family:
 
 
 def _families() -> dict[str, Family]:
-    from . import driven_body
+    from . import driven_body, tied_block, tumbling
     from .methods import coupled, decoupled
 
     def driven_dofs(model) -> int:
@@ -50,7 +50,9 @@ def _families() -> dict[str, Family]:
                 "decoupled": decoupled.run_driven_body,
             },
             dofs=driven_dofs,
-        )
+        ),
+        "tumbling-body": tumbling.family(),
+        "tied-block": tied_block.family(),
     }
 
 

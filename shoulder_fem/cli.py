@@ -33,6 +33,9 @@ def setup_logging(verbosity: int, all_ranks: bool) -> None:
     """Configure the package logger once: rank 0 only unless ``all_ranks``."""
     from mpi4py import MPI
 
+    # Claim the root logger first, so a library's later logging.basicConfig (the form compiler's
+    # build steps log at INFO through it) is a no-op and stays quiet below -vv.
+    logging.basicConfig(level=logging.DEBUG if verbosity > 1 else logging.WARNING)
     handler = logging.StreamHandler(sys.stderr)
     handler.addFilter(_RankFilter(MPI.COMM_WORLD.rank, all_ranks))
     handler.setFormatter(logging.Formatter("%(asctime)s %(rank_prefix)s%(message)s", "%H:%M:%S"))

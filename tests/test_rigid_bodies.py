@@ -1,0 +1,245 @@
+"""Rigid bodies and springs: hand solutions, exact tangent, Newton's rate, equilibrium, bad input.
+
+Every test here is cheap and runs serially and under ``mpirun -n 2`` (the rigid DOFs live on
+rank 0; the deformable block of the Taylor test is distributed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shoulder_fem.rigid import log_so3, rotation_about
+from shoulder_fem.rigid_bodies import RigidBody, RigidSystem, Tie
+from shoulder_fem.springs import GROUND, Spring, spring_response
+
+pytestmark = pytest.mark.mpi
+
+
+def six_springs(k: float = 1000.0, arm: float = 0.05, length: float = 0.1):
+    """Six springs to the ground, at ±arm along each axis, each pointing along the next axis.
+
+    Returns the springs and the small-rotation stiffness of the arrangement (hand solution):
+    K = Σ k_s b_s b_sᵀ, b_s = (n_s, p_s × n_s), n_s the spring's direction, p_s its body point
+    (relative to the reference point, the origin): a small motion (t, θ) stretches spring s by
+    b_s · (t, θ), and the arrangement's virtual work gives K.
+    """
+    springs, K = [], np.zeros((6, 6))
+    for i in range(3):
+        for sign in (1.0, -1.0):
+            p = sign * arm * np.eye(3)[i]
+            n = np.eye(3)[(i + 1) % 3]
+            ks = k * (1 + i)
+            springs.append(
+                Spring(f"s{i}{'+' if sign > 0 else '-'}", "b", p, GROUND, p + length * n, ks)
+            )
+            b = np.r_[n, np.cross(p, n)]
+            K += ks * np.outer(b, b)
+    return springs, K
+
+
+def quadratic_orders(history: list[float], floor: float) -> list[float]:
+    """Order estimates log ρ_{k+1} / log ρ_k (ρ = r / max r) where ρ_k < 0.2, r_{k+1} > floor."""
+    r = np.asarray(history)
+    rho = r / r.max()
+    return [
+        float(np.log(rho[k + 1]) / np.log(rho[k]))
+        for k in range(len(r) - 1)
+        if rho[k] < 0.2 and r[k + 1] > floor
+    ]
+
+
+def test_body_on_springs_matches_small_rotation_stiffness():
+    """Small force and moment: (t, θ) = K⁻¹ (F, M) to the linearisation error, about |θ| ~ 1e-6
+    relative (second-order terms), so 1e-5 relative. Spring tensions match k b_s·(t, θ)."""
+    springs, K = six_springs()
+    F, M = np.array([1e-4, 2e-4, -1e-4]), np.array([1e-5, -2e-5, 3e-5])
+    body = RigidBody("b", np.zeros(3), force=F, moment=M)
+    system = RigidSystem([body], springs, comm=MPI.COMM_WORLD)
+    system.solve("springs")
+    q = np.linalg.solve(K, np.r_[F, M])
+    got = np.r_[body.translation, log_so3(body.rotation)]
+    np.testing.assert_allclose(got, q, rtol=0, atol=1e-5 * np.abs(q).max())
+    tensions = system.spring_forces()
+    for s in springs:
+        p = np.asarray(s.point_a)
+        n = (np.asarray(s.point_a) - np.asarray(s.point_b)) / 0.1
+        hand = s.stiffness * np.r_[n, np.cross(p, n)] @ q
+        assert tensions[s.name]["tension"] == pytest.approx(hand, abs=1e-5 * np.abs(F).max())
+    # Equilibrium to the solver tolerance: snes_atol = 1e-12 (N and N·m rows together).
+    bal = system.balance("b")
+    assert np.linalg.norm(np.r_[bal.force_sum, bal.moment_sum]) < 1e-12
+    system.destroy()
+
+
+def test_tension_only_spring_goes_slack():
+    """A tension-only spring along x from the body's reference point to the ground at +x, no
+    preload: pushed towards its anchor it is slack (the six linear springs alone carry the load);
+    pulled away it adds k to the x stiffness."""
+    springs, K = six_springs()
+    k = 500.0
+    cable = Spring("cable", "b", (0, 0, 0), GROUND, (0.1, 0, 0), k, tension_only=True)
+    for fx in (+1e-4, -1e-4):
+        body = RigidBody("b", np.zeros(3), force=[fx, 0, 0])
+        system = RigidSystem([body], [*springs, cable], comm=MPI.COMM_WORLD)
+        system.solve("cable")
+        Kc = K.copy()
+        if fx < 0:
+            Kc[0, 0] += k
+        q = np.linalg.solve(Kc, np.r_[fx, 0, 0, 0, 0, 0])
+        assert body.translation[0] == pytest.approx(q[0], rel=1e-6)
+        tension = system.spring_forces()["cable"]["tension"]
+        assert tension == (0.0 if fx > 0 else pytest.approx(-k * q[0], rel=1e-6))
+        system.destroy()
+
+
+def test_newton_converges_quadratically_at_large_rotation():
+    """Loads turning the body by ~0.08 rad and moving it by a spring's rest length fraction: the
+    exact tangent (spring geometric stiffness, rotation terms) gives Newton's quadratic rate."""
+    springs, _ = six_springs()
+    body = RigidBody("b", np.zeros(3), force=[1.0, 2.0, -1.0], moment=[0.5, -0.2, 0.3])
+    system = RigidSystem([body], springs, comm=MPI.COMM_WORLD, options={"snes_atol": 1e-13})
+    its = system.solve("large")
+    history = system.stats.residual_histories[-1]
+    orders = quadratic_orders(history, floor=1e-12)
+    print(f"springs, large rotation: {its} Newton iterations, residuals {history}, orders {orders}")
+    assert np.linalg.norm(log_so3(body.rotation)) > 0.05
+    assert its <= 6 and len(orders) >= 2 and min(orders) > 1.8, (history, orders)
+    system.destroy()
+
+
+def test_rigid_to_rigid_spring_and_prescribed_body():
+    """Body "b" on a spring to a prescribed body "a" turned by 120°: the spring follows "a"'s
+    rotated attachment point and "b" settles where the hand solution puts it; "a" is held by
+    its prescription (no reaction needed for a static scene)."""
+    springs, K = six_springs(k=1.0)  # soft: the link spring dominates along x
+    a = RigidBody("a", np.array([1.0, 0, 0]), prescribed=True)
+    b = RigidBody("b", np.zeros(3))
+    link = Spring("link", "b", (0.0, 0, 0), "a", (0.5, 0, 0), 1e4, rest_length=0.5)
+    system = RigidSystem([a, b], [*springs, link], comm=MPI.COMM_WORLD)
+    R = rotation_about([0, 0, 1], 2 * np.pi / 3)
+    a.prescribe(np.zeros(3), R)
+    system.solve("link")
+    assert np.allclose(a.rotation, R, atol=1e-14) and np.allclose(a.translation, 0.0)
+    anchor = a.position((0.5, 0, 0))
+    resp = spring_response(link, b.position((0, 0, 0)), anchor)
+    bal = system.balance("b")
+    assert np.abs(bal.force_sum).max() < 1e-9 * abs(resp.tension)
+    assert np.abs(bal.moment_sum).max() < 1e-9 * abs(resp.tension)
+    assert resp.length == pytest.approx(0.5 + resp.tension / 1e4, rel=1e-12)
+    system.destroy()
+
+
+# ---- a small deformable block for the FE-coupled checks ----------------------------------
+
+
+def small_block(comm: MPI.Comm = MPI.COMM_WORLD):
+    """A 2×2×4 Q1 neo-Hookean block (10 mm × 10 mm × 40 mm), base and top surfaces."""
+    import dolfinx
+
+    from shoulder_fem.forms import materials
+    from shoulder_fem.forms import virtual_power as vp
+    from shoulder_fem.meshes.block import BASE, TOP, build_block
+
+    mesh, _, tags = build_block(comm, 0.01, 0.04, 2, 4)
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+    u = dolfinx.fem.Function(V)
+    law = materials.NeoHookean(c10=0.5e6, bulk_modulus=20e6)
+    dx = ufl.dx(domain=mesh, metadata={"quadrature_degree": 2})
+    residual = vp.internal_power_finite(law, u, ufl.TestFunction(V), dx)
+    surfaces = {"base": (tags, BASE.id), "top": (tags, TOP.id)}
+    return u, residual, surfaces
+
+
+def test_tangent_is_exact_taylor_test():
+    """Taylor test of the reduced residual at a random, far-from-equilibrium state (plate turned
+    by ~0.6 rad, random free displacements, springs plate-ground, node-ground and plate-node,
+    an applied moment): the remainder
+    |r(x + εd) - r(x) - ε J d| falls as ε² (rate 2), i.e. the tangent (PtAP, tie geometric
+    term, rotation-parametrisation term, springs) is the exact derivative."""
+    u, residual, surfaces = small_block()
+    plate = RigidBody("plate", (0, 0, 0.04), moment=[1e-3, 0, 2e-3])
+    springs = [
+        Spring("s", "plate", (0.005, 0, 0.04), GROUND, (0.05, 0, 0.06), 100.0),
+        # deformable ends: a free node on a side face, to the ground and to the plate
+        Spring("side", "deformable", (0.005, 0, 0.02), GROUND, (0.03, 0.01, 0.02), 300.0),
+        Spring("brace", "plate", (-0.005, 0.0, 0.04), "deformable", (-0.005, 0, 0.01), 200.0),
+    ]
+    system = RigidSystem(
+        [plate],
+        springs,
+        u=u,
+        residual=residual,
+        surfaces=surfaces,
+        ties=[Tie("plate", "top")],
+        fixed=["base"],
+    )
+    rng = np.random.default_rng(7 + MPI.COMM_WORLD.rank)
+    system.move("plate", [1e-4, -2e-4, 3e-4], rotation_about([0.2, 0.1, 1.0], 0.6))
+    x = system.reduced_vector()
+    x.array[:] += 1e-4 * rng.standard_normal(x.getLocalSize())
+    d = x.duplicate()
+    d.array[:] = rng.standard_normal(x.getLocalSize())
+    d.scale(1e-4 / d.norm(PETSc.NormType.NORM_INFINITY))
+    r0, r1, Jd = x.duplicate(), x.duplicate(), x.duplicate()
+    system.snes.computeFunction(x, r0)
+    J = system.snes.getJacobian()[0]
+    system.snes.computeJacobian(x, J)
+    J.mult(d, Jd)
+    remainders = []
+    for eps in (1.0, 0.5, 0.25, 0.125):
+        xe = x.copy()
+        xe.axpy(eps, d)
+        system.snes.computeFunction(xe, r1)
+        r1.axpy(-1.0, r0)
+        r1.axpy(-eps, Jd)
+        remainders.append(r1.norm())
+    e = np.array(remainders)
+    rates = np.log(e[:-1] / e[1:]) / np.log(2.0)
+    assert np.all(rates > 1.9), (remainders, rates)
+    system.destroy()
+
+
+def test_mass_properties_of_a_bar():
+    """A 10 × 10 × 40 mm bar of density 1800 kg/m³ on [-5, 5]² × [0, 40] mm:
+    m = ρ a² L, G = (0, 0, L/2), I_xx = I_yy = m (a² + L²)/12, I_zz = m a²/6."""
+    from shoulder_fem.meshes.block import build_block
+    from shoulder_fem.rigid_bodies import mass_properties
+
+    mesh, _, _ = build_block(MPI.COMM_WORLD, 0.01, 0.04, 2, 4)
+    props = mass_properties(mesh, 1800.0, ufl.dx(domain=mesh, metadata={"quadrature_degree": 2}))
+    m = 1800.0 * 0.01**2 * 0.04
+    assert props.mass == pytest.approx(m, rel=1e-12)
+    np.testing.assert_allclose(props.centre, [0, 0, 0.02], atol=1e-14)
+    Ixx = m * (0.01**2 + 0.04**2) / 12
+    np.testing.assert_allclose(
+        props.inertia, np.diag([Ixx, Ixx, m * 0.01**2 / 6]), rtol=0, atol=1e-12 * Ixx
+    )
+
+
+def test_bad_input_is_named_before_any_solve():
+    """A tie to a missing surface, a tie to an unknown body, a spring on an unknown body and a
+    free body held by nothing all raise ValueError naming the culprit, while building."""
+    u, residual, surfaces = small_block()
+    plate = RigidBody("plate", (0, 0, 0.04))
+    common = {"u": u, "residual": residual, "surfaces": surfaces, "fixed": ["base"]}
+    with pytest.raises(ValueError, match="surface 'lid' does not exist"):
+        RigidSystem([plate], ties=[Tie("plate", "lid")], **common)
+    with pytest.raises(ValueError, match="unknown rigid body 'bone'"):
+        RigidSystem([plate], ties=[Tie("bone", "top")], **common)
+    spring = Spring("ligament", "scapula", (0, 0, 0), GROUND, (0, 0, 1), 10.0)
+    with pytest.raises(ValueError, match="spring 'ligament': unknown body 'scapula'"):
+        RigidSystem([plate], [spring], ties=[Tie("plate", "top")], **common)
+    loose = RigidBody("humerus", (0, 0, 0.1), force=[0, 0, -1.0])
+    with pytest.raises(ValueError, match="rigid body 'humerus' is held by nothing"):
+        RigidSystem([plate, loose], ties=[Tie("plate", "top")], **common)
+    with pytest.raises(ValueError, match="rigid body 'humerus' is held by nothing"):
+        RigidSystem([loose], comm=MPI.COMM_WORLD)
+    off = Spring("off", "deformable", (0.001, 0.002, 0.003), GROUND, (0, 0, 1), 10.0)
+    with pytest.raises(ValueError, match="spring 'off': point .* is not a node"):
+        RigidSystem([plate], [off], ties=[Tie("plate", "top")], **common)
+    with pytest.raises(ValueError, match="spring 'bad': stiffness"):
+        Spring("bad", "plate", (0, 0, 0), GROUND, (1, 0, 0), -1.0)

@@ -6,21 +6,11 @@ ranks. The bar spans x in [x0, x1] with its section [-a/2, a/2]² centred on the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import dolfinx
 import numpy as np
 from mpi4py import MPI
 
-
-@dataclass(frozen=True)
-class Marker:
-    """A named tag: the single source of tag numbers."""
-
-    name: str
-    id: int
-    dim: int
-
+from .markers import Marker
 
 ROOT = Marker("root", 1, 2)
 TIP = Marker("tip", 2, 2)

@@ -8,21 +8,11 @@ that the block's cells have height L/n_axial and the plate's h/n_plate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import dolfinx
 import numpy as np
 from mpi4py import MPI
 
-
-@dataclass(frozen=True)
-class Marker:
-    """A named tag: the single source of tag numbers."""
-
-    name: str
-    id: int
-    dim: int
-
+from .markers import Marker
 
 BLOCK = Marker("block", 1, 3)
 PLATE = Marker("plate", 2, 3)

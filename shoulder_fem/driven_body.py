@@ -26,7 +26,7 @@ from petsc4py import PETSc
 from .meshes.bar import ROOT, TIP, build_bar
 from .rigid import SpinUp
 from .scene import Scene, SceneError
-from .solver import StepperStats, march
+from .solver import StepperStats, march, time_grid
 
 logger = logging.getLogger(__name__)
 
@@ -118,10 +118,7 @@ def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> Driven
     for key in ("degree", "n_axial", "n_side"):
         if key not in lv or int(lv[key]) < 1:
             raise SceneError(f"{scene.source}: levels.{level}.{key} must be a positive integer")
-    n_steps = max(1, int(round(p["end_time"] / p["time_step"])))
-    times = np.linspace(0.0, p["end_time"], n_steps + 1)
-    n_fields = min(int(p["field_outputs"]), n_steps)
-    field_idx = np.unique(np.round(np.linspace(0, n_steps, n_fields + 1)).astype(int))
+    times, field_times = time_grid(p["end_time"], p["time_step"], int(p["field_outputs"]))
     mesh, tags = build_bar(
         comm,
         p["inner_radius"],
@@ -147,7 +144,7 @@ def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> Driven
             p["spin_rate"], p["spin_up_time"], axis=SPIN_AXES[p.get("spin_axis", "transverse")]
         ),
         times=times,
-        field_times=times[field_idx],
+        field_times=field_times,
         quasi_static=bool(p["quasi_static"]),
         variant=p.get("decoupled_variant", "paper"),
         numerical_damping=p.get("numerical_damping", 0.0),

@@ -328,6 +328,18 @@ def _reason_name(reason: int) -> str:
     return f"{names[0] if names else 'UNKNOWN'} ({reason})"
 
 
+def time_grid(end_time: float, time_step: float, outputs: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step times and snapshot times of a run (s).
+
+    Returns the uniform times 0 … ``end_time`` at about ``time_step``, and ``outputs`` + 1 of
+    them (first and last included) for field snapshots.
+    """
+    n_steps = max(1, int(round(end_time / time_step)))
+    times = np.linspace(0.0, end_time, n_steps + 1)
+    chosen = np.unique(np.round(np.linspace(0, n_steps, min(outputs, n_steps) + 1)).astype(int))
+    return times, times[chosen]
+
+
 @dataclass
 class StepperStats:
     """What a :func:`march` loop did."""

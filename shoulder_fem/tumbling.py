@@ -49,7 +49,7 @@ from .forms import virtual_power as vp
 from .meshes.box import build_box
 from .rigid import NewtonEuler, RigidState
 from .scene import Scene, SceneError
-from .solver import StepperStats, march
+from .solver import StepperStats, march, time_grid
 
 if TYPE_CHECKING:
     from .api import Family
@@ -97,10 +97,7 @@ def build(scene: Scene, level: str | None, comm: MPI.Comm) -> TumblingBody:
     for key in ("degree", "n_x", "n_y", "n_z"):
         if key not in lv or int(lv[key]) < 1:
             raise SceneError(f"{scene.source}: levels.{level}.{key} must be a positive integer")
-    n_steps = max(1, int(round(p["end_time"] / p["time_step"])))
-    times = np.linspace(0.0, p["end_time"], n_steps + 1)
-    n_fields = min(int(p["field_outputs"]), n_steps)
-    field_idx = np.unique(np.round(np.linspace(0, n_steps, n_fields + 1)).astype(int))
+    times, field_times = time_grid(p["end_time"], p["time_step"], int(p["field_outputs"]))
     mesh = build_box(comm, lengths, (int(lv["n_x"]), int(lv["n_y"]), int(lv["n_z"])))
     degree = int(lv["degree"])
     omega0 = p["spin_rate"] * np.array([p["perturbation"], 1.0, 0.0])
@@ -116,7 +113,7 @@ def build(scene: Scene, level: str | None, comm: MPI.Comm) -> TumblingBody:
         lengths=lengths,
         omega0=omega0,
         times=times,
-        field_times=times[field_idx],
+        field_times=field_times,
         relaxed_start=bool(p["relaxed_start"]),
     )
 

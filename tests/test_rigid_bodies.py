@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import ufl
+from _util import quadratic_orders
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -39,17 +40,6 @@ def six_springs(k: float = 1000.0, arm: float = 0.05, length: float = 0.1):
             b = np.r_[n, np.cross(p, n)]
             K += ks * np.outer(b, b)
     return springs, K
-
-
-def quadratic_orders(history: list[float], floor: float) -> list[float]:
-    """Order estimates log ρ_{k+1} / log ρ_k (ρ = r / max r) where ρ_k < 0.2, r_{k+1} > floor."""
-    r = np.asarray(history)
-    rho = r / r.max()
-    return [
-        float(np.log(rho[k + 1]) / np.log(rho[k]))
-        for k in range(len(r) - 1)
-        if rho[k] < 0.2 and r[k + 1] > floor
-    ]
 
 
 def test_body_on_springs_matches_small_rotation_stiffness():

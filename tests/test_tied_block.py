@@ -7,23 +7,13 @@ import math
 
 import numpy as np
 import pytest
+from _util import quadratic_orders
 from mpi4py import MPI
 
 from shoulder_fem import load_scene, run
 from shoulder_fem.scene import SceneError
 
 pytestmark = pytest.mark.mpi
-
-
-def quadratic_orders(history: list[float], floor: float) -> list[float]:
-    """Order estimates log ρ_{k+1} / log ρ_k (ρ = r / max r) where ρ_k < 0.2, r_{k+1} > floor."""
-    r = np.asarray(history)
-    rho = r / r.max()
-    return [
-        float(np.log(rho[k + 1]) / np.log(rho[k]))
-        for k in range(len(r) - 1)
-        if rho[k] < 0.2 and r[k + 1] > floor
-    ]
 
 
 def test_rigid_plate_matches_stiff_deformable_plate(comm_tmp):

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from _util import assert_same_probes
 from mpi4py import MPI
 
 from shoulder_fem import load_scene, run
@@ -134,8 +135,9 @@ def test_variants_parallel_match_serial(comm_tmp, variant):
     scene = beam(spin_rate=4.0, end_time=2.0, time_step=0.1, decoupled_variant=variant)
     world = run(scene, "decoupled", out=comm_tmp / "world")
     alone = run(scene, "decoupled", out=comm_tmp / f"self{MPI.COMM_WORLD.rank}", comm=MPI.COMM_SELF)
-    for name in ("peak_tip_deflection", "root_axial_stress", "max_decoupling_indicator"):
-        assert world.probes[name] == pytest.approx(alone.probes[name], rel=1e-8), name
+    # GMRES around a lagged LU stops at a residual 1e-12 of the right-hand side; with the
+    # beam's conditioning (~1e6) the solutions agree to ~1e-6 at worst (3e-8 seen).
+    assert_same_probes(world, alone, rel=1e-6)
 
 
 def test_fast_internal_rotation_torque(comm_tmp):

@@ -33,7 +33,7 @@ SCENES = {
     "spinning-bar": ("series", "tip_deflection", {}),
     "spin-up-beam": ("series", "tip_deflection", {"end_time": 15.0, "time_step": 0.025}),
     "tied-block": ("probe", "plate_rotation", {}),
-    "tumbling-body": ("series", "omega_body_2", {}),
+    "tumbling-body": ("series", "omega_body_y", {}),
 }
 VARIANTS = ("paper", "spin-softening", "stress-stiffening")
 

@@ -18,6 +18,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
+	@mkdir -p $(dir $(DEMO_OUT))
 	$(PY) -m shoulder_fem.cli bench spinning-bar --level $(LEVEL) --out $(DEMO_OUT)
 
 test: setup

@@ -74,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="run both methods and write the comparison report")
     p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
     _common_run_args(p)
+
+    from .mesh_command import add_mesh_parser
+
+    add_mesh_parser(sub)
     return parser
 
 
@@ -110,9 +114,13 @@ def main(argv: list[str] | None = None) -> int:
     from .scene import SceneError
 
     try:
-        return {"scenes": cmd_scenes, "run": cmd_run, "compare": cmd_compare, "bench": cmd_bench}[
-            args.command
-        ](args)
+        return {
+            "scenes": cmd_scenes,
+            "run": cmd_run,
+            "compare": cmd_compare,
+            "bench": cmd_bench,
+            "mesh": _cmd_mesh,
+        }[args.command](args)
     except (SceneError, OutputError) as err:
         _error(str(err))
         return EXIT_INPUT
@@ -137,6 +145,12 @@ def _print(text: str) -> None:
 
     if MPI.COMM_WORLD.rank == 0:
         print(text, flush=True)
+
+
+def _cmd_mesh(args) -> int:
+    from .mesh_command import cmd_mesh
+
+    return cmd_mesh(args)
 
 
 def cmd_scenes(args) -> int:

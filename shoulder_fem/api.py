@@ -35,7 +35,7 @@ class Family:
 
 
 def _families() -> dict[str, Family]:
-    from . import driven_body, tied_block, tumbling
+    from . import driven_body, hertz, tied_block, tumbling
     from .methods import coupled, decoupled
 
     def driven_dofs(model) -> int:
@@ -53,6 +53,7 @@ def _families() -> dict[str, Family]:
         ),
         "tumbling-body": tumbling.family(),
         "tied-block": tied_block.family(),
+        "hertz": hertz.family(),
     }
 
 
@@ -139,6 +140,11 @@ def run(
     if scene.family not in families:
         raise SceneError(f"{scene.source}: unknown scene family '{scene.family}'")
     family = families[scene.family]
+    if method not in family.methods:
+        raise SceneError(
+            f"{scene.source}: scene '{scene.name}' has no {method} method "
+            f"(it has: {', '.join(family.methods)})"
+        )
     level = level or scene.default_level
     scene.level(level)  # unknown level → SceneError now
     out = Path(out)

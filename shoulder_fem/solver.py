@@ -156,6 +156,8 @@ class NonlinearSolver:
             Krylov iterations or failed. For operators that drift slowly (a Coriolis term).
         near_nullspace: attach the rigid-body modes (done anyway when ``pc_type`` is gamg).
         form_compiler_params: passed to ``dolfinx.fem.form`` (e.g. quadrature_degree).
+        contact: a :class:`shoulder_fem.contact.Contact` on ``u``: its forces are added to every
+            residual and its tangent to every Jacobian (built with the same ``bcs``).
     """
 
     def __init__(
@@ -172,7 +174,11 @@ class NonlinearSolver:
         operator: Callable[[PETSc.Mat], None] | None = None,
         lagged_factorization: bool = False,
         max_lagged_iterations: int = 8,
+        contact=None,
     ):
+        if contact is not None and (linear or operator is not None or lagged_factorization):
+            raise ValueError("contact terms need a nonlinear solve with an assembled Jacobian")
+        self.contact = contact
         self.u = u
         self._fill_operator = operator
         self._lagged = lagged_factorization
@@ -234,6 +240,8 @@ class NonlinearSolver:
         fem_petsc.assemble_vector(b, self._F)
         fem_petsc.apply_lifting(b, [self._J], bcs=[self.bcs], x0=[x], scale=-1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        if self.contact is not None:
+            self.contact.add_residual(b)
         fem_petsc.set_bc(b, self.bcs, x, -1.0)
 
     def _jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, A: PETSc.Mat, P: PETSc.Mat) -> None:
@@ -249,6 +257,8 @@ class NonlinearSolver:
             A.zeroEntries()
             fem_petsc.assemble_matrix(A, self._J, bcs=self.bcs)
             A.assemble()
+            if self.contact is not None:
+                self.contact.add_jacobian(A)
         self._operator_changed = False
         refactor = self._refactor or not self._lagged
         # Lagged: the preconditioner matrix P is a separate copy, updated only to refactor;

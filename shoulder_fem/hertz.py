@@ -1,0 +1,433 @@
+"""The ``hertz`` scene family: an elastic ball on a rigid flat or in a rigid conforming socket.
+
+The verification scene of the contact code (:mod:`shoulder_fem.contact`) against Hertz theory.
+The ball (radius R, Young's modulus E, Poisson's ratio ν, small strain: Hertz is a linear
+theory) is modelled by its lower half, a quarter of it with the symmetry planes x = 0 and
+y = 0; its pole touches the counterpart at the origin. The counterpart is rigid: the plane
+z = 0, or a spherical socket of radius Rs > R centred at (0, 0, Rs). The ball's flat top face is
+driven down by an approach δ, adjusted by secant iterations until the contact force is the
+scene's force F (to ``force_tolerance``); F is reached in ``load_steps`` equal increments.
+
+Hertz (rigid counterpart): E* = E/(1 − ν²); R* = R on the flat, R Rs/(Rs − R) in the socket
+(the conforming estimate); a = (3 F R*/(4 E*))^(1/3); p0 = 3 F/(2 π a²).
+
+Measured: the largest quadrature-point pressure, the contact radius from the contact area
+(a = √(4 A/π) for the quarter model), the contact force (and, independently, the reaction on the
+driven face), the penetration, and the Newton and Uzawa iteration counts.
+
+Element: P1 tetrahedra (a metal: no locking), contact evaluated at the slave nodes (nodal
+quadrature), mesh sizes relative to the Hertz contact radius of the scene, so that levels are
+refinements of the same problem. 10-node tetrahedra are a poor choice here: under a uniform
+pressure their vertex loads are zero, and a stiff penalty makes the pressure oscillate from
+node to node (measured at the coarse level: peak pressure +19 % to +34 % too high with nodal or
+Gauss contact points; +2 % with Gauss points and a penalty 10 times softer).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import dolfinx
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .contact import Contact, ContactPair, Plane, Sphere
+from .forms import materials
+from .forms import virtual_power as vp
+from .scene import Scene, SceneError
+from .solver import ConvergenceError, NonlinearSolver
+
+logger = logging.getLogger(__name__)
+
+#: The quarter model carries a quarter of every force and area.
+SYMMETRY_FACTOR = 4.0
+#: Secant iterations allowed to match the contact force at one load step.
+MAX_FORCE_ITERATIONS = 20
+#: Uzawa iterations allowed per solve (augmented Lagrangian).
+MAX_UZAWA = 30
+
+
+@dataclass(frozen=True)
+class HertzSolution:
+    """Hertz theory for a ball on a rigid counterpart (SI units)."""
+
+    contact_radius: float  # a, m
+    max_pressure: float  # p0, Pa
+    approach: float  # δ = a²/R*, m
+    effective_radius: float  # R*, m
+    effective_modulus: float  # E*, Pa
+
+
+def hertz_solution(
+    force: float,
+    radius: float,
+    youngs_modulus: float,
+    poisson_ratio: float,
+    socket_radius: float | None = None,
+) -> HertzSolution:
+    """Hertz's contact radius, peak pressure and approach (rigid flat, or rigid socket)."""
+    e_star = youngs_modulus / (1.0 - poisson_ratio**2)
+    r_eff = radius if socket_radius is None else radius * socket_radius / (socket_radius - radius)
+    a = (3.0 * force * r_eff / (4.0 * e_star)) ** (1.0 / 3.0)
+    return HertzSolution(a, 3.0 * force / (2.0 * math.pi * a * a), a * a / r_eff, r_eff, e_star)
+
+
+@dataclass
+class HertzModel:
+    """Everything a run needs (SI units)."""
+
+    scene: Scene
+    level: str
+    geometry: str
+    radius: float
+    socket_radius: float | None
+    youngs_modulus: float
+    poisson_ratio: float
+    force: float
+    load_steps: int
+    contact_method: str
+    penalty: float
+    gap_tolerance: float
+    force_tolerance: float
+    degree: int
+    h_contact: float
+    mesh: dolfinx.mesh.Mesh
+    cell_tags: dolfinx.mesh.MeshTags
+    facet_tags: dolfinx.mesh.MeshTags
+
+    def theory(self, force: float | None = None) -> HertzSolution:
+        """Hertz's solution at ``force`` (default: the scene's force)."""
+        return hertz_solution(
+            self.force if force is None else force,
+            self.radius,
+            self.youngs_modulus,
+            self.poisson_ratio,
+            self.socket_radius,
+        )
+
+    def master(self) -> Plane | Sphere:
+        """The rigid counterpart."""
+        if self.socket_radius is None:
+            return Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+        return Sphere((0.0, 0.0, self.socket_radius), self.socket_radius, concave=True)
+
+
+def build(scene: Scene, level: str | None, comm: MPI.Comm) -> HertzModel:
+    """Check the parameters together and mesh the quarter ball of ``level``."""
+    from .meshes.contact_bodies import build_hemisphere
+
+    p = scene.values()
+    level = level or scene.default_level
+    lv = scene.level(level)
+    for key in ("degree", "h_contact", "refine_radius", "h_far"):
+        if key not in lv or not float(lv[key]) > 0:
+            raise SceneError(f"{scene.source}: levels.{level}.{key} must be given and > 0")
+    socket = p["socket_radius"] if p["geometry"] == "socket" else None
+    if socket is not None and socket <= p["radius"]:
+        raise SceneError(
+            f"{scene.where('socket_radius', 'radius')}: socket_radius = {socket} m must exceed "
+            f"radius = {p['radius']} m"
+        )
+    sol = hertz_solution(p["force"], p["radius"], p["youngs_modulus"], p["poisson_ratio"], socket)
+    if sol.contact_radius > 0.3 * p["radius"]:
+        raise SceneError(
+            f"{scene.where('force')}: force = {p['force']} N gives a Hertz contact radius "
+            f"{sol.contact_radius:.3g} m > 0.3 R: outside half-space theory; lower the force"
+        )
+    h_contact = float(lv["h_contact"]) * sol.contact_radius
+    mesh, cell_tags, facet_tags = build_hemisphere(
+        comm,
+        p["radius"],
+        h_contact,
+        float(lv["h_far"]) * p["radius"],
+        float(lv["refine_radius"]) * sol.contact_radius,
+        quarter=True,
+    )
+    return HertzModel(
+        scene=scene,
+        level=level,
+        geometry=p["geometry"],
+        radius=p["radius"],
+        socket_radius=socket,
+        youngs_modulus=p["youngs_modulus"],
+        poisson_ratio=p["poisson_ratio"],
+        force=p["force"],
+        load_steps=int(p["load_steps"]),
+        contact_method=p["contact_method"],
+        penalty=p["penalty_factor"] * p["youngs_modulus"] / h_contact,
+        gap_tolerance=p["gap_tolerance"],
+        force_tolerance=p["force_tolerance"],
+        degree=int(lv["degree"]),
+        h_contact=h_contact,
+        mesh=mesh,
+        cell_tags=cell_tags,
+        facet_tags=facet_tags,
+    )
+
+
+def vector_space(model: HertzModel) -> dolfinx.fem.FunctionSpace:
+    """Displacement space: continuous P_k vectors."""
+    return dolfinx.fem.VectorFunctionSpace(model.mesh, ("Lagrange", model.degree))
+
+
+def dofs(model: HertzModel) -> int:
+    """Displacement DOFs (global)."""
+    V = vector_space(model)
+    return V.dofmap.index_map.size_global * V.dofmap.index_map_bs
+
+
+def family():
+    """The ``hertz`` family for :func:`shoulder_fem.api._families`.
+
+    One method: there is no rigid motion to split, so "coupled" is the only pipeline.
+    """
+    from .api import Family
+
+    return Family(build=build, methods={"coupled": run}, dofs=dofs)
+
+
+class HertzProblem:
+    """The quarter ball with its contact, driven by the approach δ (collective methods)."""
+
+    def __init__(self, model: HertzModel, options: dict | None = None):
+        from .meshes.contact_bodies import CONTACT, SYM_X, SYM_Y, TOP
+
+        self.model = model
+        mesh = model.mesh
+        V = self.V = vector_space(model)
+        u = self.u = dolfinx.fem.Function(V, name="displacement")
+        w = ufl.TestFunction(V)
+        q = {"quadrature_degree": 2 * (model.degree - 1)}
+        dx = ufl.Measure("dx", domain=mesh, metadata=q)
+        material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
+        self.internal = vp.internal_power_linear(material, u, w, dx)
+        self._internal_form = dolfinx.fem.form(self.internal, form_compiler_params=q)
+        fdim = mesh.topology.dim - 1
+        ft = model.facet_tags
+        self.approach = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0.0))
+        bcs = []
+        for comp, marker in ((0, SYM_X), (1, SYM_Y)):
+            Vi, _ = V.sub(comp).collapse()
+            dofs_i = dolfinx.fem.locate_dofs_topological(
+                (V.sub(comp), Vi), fdim, ft.find(marker.id)
+            )
+            zero = dolfinx.fem.Function(Vi)
+            bcs.append(dolfinx.fem.dirichletbc(zero, dofs_i, V.sub(comp)))
+        top = dolfinx.fem.locate_dofs_topological(V.sub(2), fdim, ft.find(TOP.id))
+        self._top_dofs = top
+        self.minus_approach = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0.0))
+        bcs.append(dolfinx.fem.dirichletbc(self.minus_approach, top, V.sub(2)))
+        self.bcs = bcs
+        pair = ContactPair(
+            "ball",
+            (CONTACT.id,),
+            model.master(),
+            penalty=model.penalty,
+            method=model.contact_method,
+            gap_tolerance=model.gap_tolerance,
+        )
+        self.contact = Contact(V, u, ft, [pair], bcs=bcs, quadrature_degree=0)
+        force_scale = model.force / SYMMETRY_FACTOR
+        self.solver = NonlinearSolver(
+            self.internal,
+            u,
+            bcs,
+            name="hertz",
+            options={
+                "snes_atol": 1e-9 * force_scale,
+                "snes_rtol": 1e-9,
+                "snes_divergence_tolerance": -1.0,
+                **(options or {}),
+            },
+            form_compiler_params=q,
+            contact=self.contact,
+        )
+        self.delta = 0.0
+        self.newton: list[int] = []
+        self.uzawa: list[int] = []
+
+    def solve(self, delta: float, step: str) -> float:
+        """Drive the top face down by ``delta`` (m); return the total contact force (N)."""
+        shift = delta - self.delta
+        self.u.x.array.reshape(-1, 3)[:, 2] -= shift  # rigid predictor
+        self.u.x.scatter_forward()
+        self.minus_approach.value = -delta
+        self.delta = delta
+        for k in range(MAX_UZAWA):
+            self.newton.append(self.solver.solve(step=f"{step}, approach {delta:.6g} m"))
+            if not self.contact.augmented or self.contact.augment():
+                self.uzawa.append(k + 1)
+                break
+        else:
+            raise ConvergenceError(
+                f"{step}: penetration above gap_tolerance after {MAX_UZAWA} Uzawa iterations",
+                "DIVERGED_UZAWA",
+                MAX_UZAWA,
+                self.solver.prefix,
+            )
+        return self.contact_force()
+
+    def contact_force(self) -> float:
+        """Total (full-ball) contact force along z (N)."""
+        return SYMMETRY_FACTOR * float(self.contact.resultants()["ball"]["force"][2])
+
+    def top_reaction(self) -> float:
+        """Total force (N, along z) the driven face exerts on the ball, from the FE residual."""
+        vec = fem_petsc.assemble_vector(self._internal_form)
+        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        n_owned = self.V.dofmap.index_map.size_local * 3
+        top = self._top_dofs[self._top_dofs < n_owned]
+        local = float(np.sum(vec.array_r[top]))
+        vec.destroy()
+        return SYMMETRY_FACTOR * self.u.function_space.mesh.comm.allreduce(local, op=MPI.SUM)
+
+    def reach(self, force: float, step: str) -> float:
+        """Find the approach giving a contact force ``force`` (secant); return it."""
+        model = self.model
+        tol = model.force_tolerance * force
+        d0 = max(self.delta, 0.0)
+        f0 = self.contact_force() if d0 > 0 else 0.0
+        # predictor: Hertz's increment of approach from f0 to force
+        d1 = d0 + model.theory(force).approach - (model.theory(f0).approach if f0 > 0 else 0.0)
+        f1 = self.solve(d1, step)
+        for _ in range(MAX_FORCE_ITERATIONS):
+            if abs(f1 - force) <= tol:
+                return d1
+            if f1 != f0 and d1 != d0:
+                d2 = d1 + (force - f1) * (d1 - d0) / (f1 - f0)
+            else:
+                d2 = d1 * 1.1
+            if f1 <= 0 or d2 <= 0:  # no contact yet: move by Hertz's estimate
+                d2 = d1 + model.theory(force).approach
+            d0, f0, d1 = d1, f1, d2
+            f1 = self.solve(d1, step)
+        if abs(f1 - force) <= tol:
+            return d1
+        raise ConvergenceError(
+            f"{step}: contact force {f1:.6g} N, target {force:.6g} N",
+            "DIVERGED_FORCE_MATCH",
+            MAX_FORCE_ITERATIONS,
+            self.solver.prefix,
+        )
+
+    def pressure_profile(self) -> tuple[np.ndarray, np.ndarray]:
+        """(r, p) of the active quadrature points, on rank 0 sorted by r (others: empty)."""
+        st = self.contact._state[0]
+        xq, p = st["xq"], st["p"]
+        a = p > 0
+        r = np.hypot(xq[a, 0], xq[a, 1])
+        comm = self.u.function_space.mesh.comm
+        parts = comm.gather((r, p[a]), root=0)
+        if comm.rank != 0:
+            return np.zeros(0), np.zeros(0)
+        r = np.concatenate([x[0] for x in parts])
+        p = np.concatenate([x[1] for x in parts])
+        order = np.argsort(r)
+        return r[order], p[order]
+
+
+def run(model: HertzModel, recorder, monitor, fields_dir, options=None) -> None:
+    """Press the ball to the scene's force in ``load_steps`` increments; record against Hertz."""
+    problem = HertzProblem(model, options)
+    recorder.set_parameter("socket_radius", model.socket_radius, "m")
+    recorder.set_parameter("counterpart_youngs_modulus", "rigid", "Pa")
+    recorder.set_parameter("counterpart_poisson_ratio", "rigid", "1")
+    recorder.set_parameter("penalty", model.penalty, "Pa/m")
+    recorder.set_parameter("h_contact", model.h_contact, "m")
+    reached = 0.0
+    try:
+        for k in range(1, model.load_steps + 1):
+            force = model.force * k / model.load_steps
+            problem.reach(force, step=f"load step {k}/{model.load_steps}")
+            reached = force
+            res = problem.contact.resultants()["ball"]
+            theory = model.theory(force)
+            radius = math.sqrt(SYMMETRY_FACTOR * res["area"] / math.pi)
+            recorder.add_series_point("max_contact_pressure", force, res["max_pressure"], "N", "Pa")
+            recorder.add_series_point("hertz_max_pressure", force, theory.max_pressure, "N", "Pa")
+            recorder.add_series_point("contact_radius", force, radius, "N", "m")
+            recorder.add_series_point(
+                "hertz_contact_radius", force, theory.contact_radius, "N", "m"
+            )
+            recorder.add_series_point("approach", force, problem.delta, "N", "m")
+            monitor.sample()
+            logger.info(
+                "hertz: F = %.6g N, p_max = %.6g Pa (Hertz %.6g), a = %.6g m (Hertz %.6g)",
+                force,
+                res["max_pressure"],
+                theory.max_pressure,
+                radius,
+                theory.contact_radius,
+            )
+    finally:
+        _record(model, problem, recorder, reached)
+    _write_fields(problem, fields_dir)
+    problem.solver.destroy()
+
+
+def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) -> None:
+    res = problem.contact.resultants()["ball"]
+    theory = model.theory(reached) if reached > 0 else None
+    radius = math.sqrt(SYMMETRY_FACTOR * res["area"] / math.pi)
+    recorder.set_probe("force_reached", reached, "N")
+    recorder.set_probe("contact_force", problem.contact_force(), "N")
+    recorder.set_probe("top_reaction_force", problem.top_reaction(), "N")
+    recorder.set_probe("max_contact_pressure", res["max_pressure"], "Pa")
+    recorder.set_probe("contact_radius", radius, "m")
+    recorder.set_probe("contact_area", SYMMETRY_FACTOR * res["area"], "m^2")
+    recorder.set_probe("approach", problem.delta, "m")
+    recorder.set_probe("max_penetration", res["max_penetration"], "m")
+    if theory is not None:
+        recorder.set_probe("hertz_max_pressure", theory.max_pressure, "Pa")
+        recorder.set_probe("hertz_contact_radius", theory.contact_radius, "m")
+        recorder.set_probe("hertz_approach", theory.approach, "m")
+        recorder.set_probe(
+            "max_pressure_rel_error", res["max_pressure"] / theory.max_pressure - 1.0, "1"
+        )
+        recorder.set_probe("contact_radius_rel_error", radius / theory.contact_radius - 1.0, "1")
+    r, p = problem.pressure_profile()
+    recorder.set_series("pressure_profile", r, p, "m", "Pa")
+    if theory is not None and len(r):
+        rr = np.linspace(0.0, theory.contact_radius, 50)
+        recorder.set_series(
+            "hertz_pressure_profile",
+            rr,
+            theory.max_pressure * np.sqrt(np.clip(1 - (rr / theory.contact_radius) ** 2, 0, 1)),
+            "m",
+            "Pa",
+        )
+    stats = problem.solver.stats
+    recorder.count("steps", model.load_steps)
+    recorder.count("newton_iterations", stats.newton_iterations)
+    recorder.count("linear_solves", stats.linear_solves)
+    recorder.count("factorizations", stats.newton_iterations)
+    recorder.count("cutbacks", 0)
+    recorder.extra("newton_iterations_per_solve", list(problem.newton))
+    recorder.extra("uzawa_iterations_per_solve", list(problem.uzawa))
+    cs = problem.contact.stats
+    recorder.extra(
+        "contact",
+        {
+            "evaluations": cs.evaluations,
+            "search_s": cs.search_s,
+            "assembly_s": cs.assembly_s,
+            "pattern_merges": cs.pattern_merges,
+        },
+    )
+
+
+def _write_fields(problem: HertzProblem, fields_dir) -> None:
+    from .results import FieldWriter
+
+    mesh = problem.V.mesh
+    V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+    u1 = dolfinx.fem.Function(V1, name="displacement")
+    u1.interpolate(problem.u)
+    pressure, shear = problem.contact.pressure_fields()
+    with FieldWriter(mesh.comm, mesh, fields_dir / "contact.xdmf") as writer:
+        writer.write([u1, pressure, shear], 1.0)

@@ -1,0 +1,604 @@
+"""Contact: the numpy assembly against UFL, exact penalty solutions, the patch test, action and
+reaction, friction, large sliding, robustness, Hertz, and serial = MPI."""
+
+from __future__ import annotations
+
+import math
+
+import dolfinx
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+import pytest
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shoulder_fem.api import run
+from shoulder_fem.contact import (
+    Contact,
+    ContactError,
+    ContactPair,
+    MeshSurface,
+    Plane,
+    Sphere,
+)
+from shoulder_fem.forms import contact as fc
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.hertz import hertz_solution
+from shoulder_fem.meshes import contact_bodies as cb
+from shoulder_fem.scene import load_scene
+from shoulder_fem.solver import ConvergenceError, NonlinearSolver, StepperStats, march
+
+E, NU = 1.0e9, 0.3
+BOTTOM, TOP, XMIN, YMIN = 1, 2, 3, 4
+
+
+def _column(n=(3, 3, 4), size=(1.0, 1.0, 2.0), degree=1):
+    """A box on z in [0, H] with tagged bottom, top and the two symmetry faces."""
+    mesh = dolfinx.mesh.create_box(
+        MPI.COMM_WORLD, [[0, 0, 0], list(size)], list(n), dolfinx.mesh.CellType.tetrahedron
+    )
+    H = size[2]
+    found = [
+        (BOTTOM, lambda x: np.isclose(x[2], 0.0)),
+        (TOP, lambda x: np.isclose(x[2], H)),
+        (XMIN, lambda x: np.isclose(x[0], 0.0)),
+        (YMIN, lambda x: np.isclose(x[1], 0.0)),
+    ]
+    idx, val = [], []
+    for tag, where in found:
+        f = dolfinx.mesh.locate_entities_boundary(mesh, 2, where)
+        idx.append(f)
+        val.append(np.full(len(f), tag, dtype=np.int32))
+    idx, val = np.concatenate(idx), np.concatenate(val)
+    order = np.argsort(idx)
+    ft = dolfinx.mesh.meshtags(mesh, 2, idx[order], val[order])
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("CG", degree))
+    return mesh, ft, V
+
+
+def _component_bc(V, ft, tag, comp, value):
+    fdim = V.mesh.topology.dim - 1
+    dofs = dolfinx.fem.locate_dofs_topological(V.sub(comp), fdim, ft.find(tag))
+    const = dolfinx.fem.Constant(V.mesh, PETSc.ScalarType(value))
+    return dolfinx.fem.dirichletbc(const, dofs, V.sub(comp)), const, dofs
+
+
+def _reaction(residual_form, dofs) -> float:
+    """Sum of the FE internal force over owned ``dofs`` (unrolled), all ranks."""
+    vec = fem_petsc.assemble_vector(residual_form)
+    vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    n_owned = len(vec.array_r)
+    local = float(np.sum(vec.array_r[dofs[dofs < n_owned]]))
+    vec.destroy()
+    return MPI.COMM_WORLD.allreduce(local, op=MPI.SUM)
+
+
+class Column:
+    """A linear-elastic column pressed on a rigid plane through its top face."""
+
+    def __init__(
+        self,
+        master,
+        penalty,
+        method="penalty",
+        gap_tolerance=1e-9,
+        friction=0.0,
+        slip=1e-9,
+        n=(3, 3, 4),
+        options=None,
+        poisson=NU,
+    ):
+        self.mesh, self.ft, self.V = _column(n)
+        self.u = dolfinx.fem.Function(self.V)
+        w = ufl.TestFunction(self.V)
+        dx = ufl.Measure("dx", domain=self.mesh)
+        self.F = vp.internal_power_linear(materials.LinearElastic(E, poisson), self.u, w, dx)
+        self.form = dolfinx.fem.form(self.F)
+        bx, _, _ = _component_bc(self.V, self.ft, XMIN, 0, 0.0)
+        by, _, _ = _component_bc(self.V, self.ft, YMIN, 1, 0.0)
+        bz, self.top_z, self.top_z_dofs = _component_bc(self.V, self.ft, TOP, 2, 0.0)
+        self.bcs = [by, bz] if friction > 0 else [bx, by, bz]
+        self.top_x = None
+        if friction > 0:  # drag: the top face is moved along x too
+            btx, self.top_x, self.top_x_dofs = _component_bc(self.V, self.ft, TOP, 0, 0.0)
+            self.bcs.append(btx)
+        pair = ContactPair(
+            "base",
+            (BOTTOM,),
+            master,
+            penalty,
+            method=method,
+            gap_tolerance=gap_tolerance,
+            friction=friction,
+            slip_regularization=slip,
+        )
+        self.contact = Contact(self.V, self.u, self.ft, [pair], bcs=self.bcs, quadrature_degree=0)
+        self.solver = NonlinearSolver(
+            self.F,
+            self.u,
+            self.bcs,
+            name="column",
+            options={"snes_atol": 1e-9, "snes_rtol": 1e-12, **(options or {})},
+            contact=self.contact,
+        )
+
+    def solve(self, max_uzawa=40) -> int:
+        for k in range(max_uzawa):
+            self.solver.solve()
+            if not self.contact.augmented or self.contact.augment():
+                return k + 1
+        raise AssertionError("Uzawa did not converge")
+
+    def reaction(self, comp: int) -> float:
+        dofs = self.top_z_dofs if comp == 2 else self.top_x_dofs
+        return _reaction(self.form, np.asarray(dofs))
+
+
+# ---- the assembly against UFL -----------------------------------------------------------------
+@pytest.mark.mpi
+@pytest.mark.parametrize("degree", [1, 2])
+@pytest.mark.parametrize(
+    "master",
+    [
+        Plane((0.0, 0.0, 0.01), (0.05, 0.02, 1.0)),
+        Sphere((0.5, 0.4, -2.9), 3.0),
+        Sphere((0.5, 0.4, 2.0), 2.03, concave=True),
+    ],
+    ids=["plane", "ball", "socket"],
+)
+def test_assembly_matches_ufl_penalty_form(degree, master):
+    """Residual and tangent (curvature term included) of the numpy contact assembly equal the
+    UFL penalty form and its automatic derivative when every point is in contact (so that
+    both quadratures integrate a polynomial exactly): to round-off, serial and MPI."""
+    mesh, ft, V = _column((3, 3, 2), (1.0, 1.0, 0.5), degree)
+    u = dolfinx.fem.Function(V)
+    u.interpolate(
+        lambda x: np.vstack([0.01 * x[1] ** 2, -0.02 * x[0] * x[1], -0.05 - 0.01 * x[0] ** 2])
+    )
+    eps = 1e3
+    c = Contact(
+        V,
+        u,
+        ft,
+        [ContactPair("p", (BOTTOM,), master, eps)],
+        quadrature_degree=6,
+        slave_integration="element",
+    )
+    w = ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=mesh, subdomain_data=ft, metadata={"quadrature_degree": 6})
+    if isinstance(master, Plane):
+        g, n = fc.plane_gap(u, ufl.as_vector(master.point), ufl.as_vector(master.normal))
+    else:
+        g, n = fc.sphere_gap(u, ufl.as_vector(master.centre), master.radius, master.concave)
+    F = fc.penalty_contact_power(g, n, eps, w, ds(BOTTOM))
+    J = ufl.derivative(F, u)
+    b_ufl = fem_petsc.assemble_vector(dolfinx.fem.form(F))
+    b_ufl.ghostUpdate(PETSc.InsertMode.ADD, PETSc.ScatterMode.REVERSE)
+    b = b_ufl.duplicate()
+    b.set(0.0)
+    c.add_residual(b)
+    A_ufl = fem_petsc.assemble_matrix(dolfinx.fem.form(J))
+    A_ufl.assemble()
+    A = fem_petsc.assemble_matrix(dolfinx.fem.form(J))
+    A.assemble()
+    A.zeroEntries()
+    c.add_jacobian(A)
+    assert c.resultants()["p"]["active_points"] == MPI.COMM_WORLD.allreduce(
+        len(c._state[0]["p"]), op=MPI.SUM
+    )
+    b.axpy(-1.0, b_ufl)
+    A.axpy(-1.0, A_ufl)
+    assert b.norm() <= 1e-13 * b_ufl.norm()
+    assert A.norm() <= 1e-13 * A_ufl.norm()
+
+
+# ---- exact penalty / augmented solutions -------------------------------------------------------
+@pytest.mark.mpi
+def test_penalty_column_exact_and_penetration_falls_with_penalty():
+    """Uniaxial stress in a column on a rigid plane: p = E δ/(H + E/ε) exactly, penetration p/ε,
+    falling as the penalty ε rises."""
+    H, delta = 2.0, 1e-3
+    pens = []
+    for factor in (10.0, 100.0, 1000.0):
+        eps = factor * E / H
+        col = Column(Plane((0, 0, 0), (0, 0, 1)), eps)
+        col.top_z.value = -delta
+        col.solve()
+        r = col.contact.resultants()["base"]
+        p = E * delta / (H + E / eps)
+        assert r["max_pressure"] == pytest.approx(p, rel=1e-8)
+        assert r["normal_force"] == pytest.approx(p * 1.0, rel=1e-8)  # unit area
+        assert r["area"] == pytest.approx(1.0, rel=1e-12)
+        assert r["max_penetration"] == pytest.approx(p / eps, rel=1e-7)
+        assert -col.reaction(2) == pytest.approx(r["force"][2], rel=1e-8)
+        pens.append(r["max_penetration"])
+    assert pens[0] > 9 * pens[1] > 81 * pens[2]
+
+
+@pytest.mark.mpi
+def test_augmented_lagrangian_gap_below_tolerance():
+    """With a soft penalty (penetration 9 % of δ by penalty alone) the Uzawa iterations bring
+    the gap below its tolerance and the pressure to E δ / H."""
+    H, delta, tol = 2.0, 1e-3, 1e-8
+    col = Column(Plane((0, 0, 0), (0, 0, 1)), 10.0 * E / H, method="augmented", gap_tolerance=tol)
+    col.top_z.value = -delta
+    uzawa = col.solve()
+    r = col.contact.resultants()["base"]
+    assert uzawa > 2
+    assert r["max_penetration"] <= tol
+    assert r["max_pressure"] == pytest.approx(E * delta / H, rel=1e-4)
+
+
+@pytest.mark.mpi
+def test_no_contact_gives_zero_force_not_nan():
+    """A column lifted off the plane: zero force, zero pressure field, a finite residual."""
+    col = Column(Plane((0, 0, -1.0), (0, 0, 1)), 100 * E)
+    col.top_z.value = 1e-3
+    col.solve()
+    r = col.contact.resultants()["base"]
+    assert np.all(r["force"] == 0.0) and r["area"] == 0.0 and r["max_pressure"] == 0.0
+    assert r["centre_of_pressure"] is None and r["active_points"] == 0
+    p, s = col.contact.pressure_fields()
+    assert np.all(p.x.array == 0.0) and np.all(s.x.array == 0.0)
+    assert np.isfinite(col.solver.residual_norm())
+
+
+@pytest.mark.mpi
+def test_initial_penetration_is_resolved():
+    """The plane starts 1 mm inside the column (top held): Newton pushes the column out to the
+    exact penalty solution p = E d/(H + E/ε)."""
+    H, d, eps = 2.0, 1e-3, 100 * E / 2.0
+    col = Column(Plane((0, 0, d), (0, 0, 1)), eps)
+    col.solve()
+    r = col.contact.resultants()["base"]
+    assert r["max_pressure"] == pytest.approx(E * d / (H + E / eps), rel=1e-8)
+    assert col.solver.stats.newton_iterations <= 3  # linear once the active set is known
+
+
+# ---- two deformable blocks ---------------------------------------------------------------------
+class TwoBlocks:
+    """Upper block pressed on the lower one through non-matching meshes (frictionless)."""
+
+    def __init__(
+        self,
+        upper=(1.0, 1.0, 0.5),
+        offset=(0.0, 0.0),
+        h_upper=0.13,
+        drag=False,
+        lower=(1.0, 1.0, 0.5),
+        h_lower=0.2,
+        penalty=None,
+    ):
+        self.mesh, _, self.ft = cb.build_two_blocks(
+            MPI.COMM_WORLD, lower, upper, h_lower, h_upper, offset=offset
+        )
+        self.H = lower[2] + upper[2]
+        V = self.V = dolfinx.fem.VectorFunctionSpace(self.mesh, ("CG", 1))
+        self.u = dolfinx.fem.Function(V)
+        w = ufl.TestFunction(V)
+        dx = ufl.Measure("dx", domain=self.mesh)
+        self.F = vp.internal_power_linear(materials.LinearElastic(E, NU), self.u, w, dx)
+        self.form = dolfinx.fem.form(self.F)
+        bcs = []
+        self.eps = penalty or 1000 * E / self.H
+        bcs.append(_component_bc(V, self.ft, cb.LOWER_BOTTOM.id, 2, 0.0))
+        bcs.append(_component_bc(V, self.ft, cb.LOWER_XMIN.id, 0, 0.0))
+        bcs.append(_component_bc(V, self.ft, cb.LOWER_YMIN.id, 1, 0.0))
+        bcs.append(_component_bc(V, self.ft, cb.UPPER_TOP.id, 2, 0.0))
+        if drag:
+            bcs.append(_component_bc(V, self.ft, cb.UPPER_TOP.id, 0, 0.0))
+            bcs.append(_component_bc(V, self.ft, cb.UPPER_TOP.id, 1, 0.0))
+        else:
+            bcs.append(_component_bc(V, self.ft, cb.UPPER_XMIN.id, 0, 0.0))
+            bcs.append(_component_bc(V, self.ft, cb.UPPER_YMIN.id, 1, 0.0))
+        self.base_dofs, self.top_dofs = np.asarray(bcs[0][2]), np.asarray(bcs[3][2])
+        self.top_z = bcs[3][1]
+        self.top_x = bcs[4][1] if drag else None
+        self.bcs = [b[0] for b in bcs]
+        pair = ContactPair(
+            "interface", (cb.UPPER_BOTTOM.id,), MeshSurface((cb.LOWER_TOP.id,)), self.eps
+        )
+        self.contact = Contact(V, self.u, self.ft, [pair], bcs=self.bcs, quadrature_degree=0)
+        self.solver = NonlinearSolver(
+            self.F,
+            self.u,
+            self.bcs,
+            name="blocks",
+            options={"snes_atol": 1e-6, "snes_rtol": 1e-12},
+            contact=self.contact,
+        )
+
+
+@pytest.mark.mpi
+def test_patch_test_non_matching_meshes_and_action_reaction():
+    """Two blocks with non-matching interface meshes transmit a uniform pressure within 1 %
+    (exact: p = E δ/(H + E/ε)); the contact force, the reaction at the lower block's base and
+    the force on the upper block's top balance to the solver tolerance."""
+    tb = TwoBlocks()
+    delta = 1e-3
+    tb.top_z.value = -delta
+    tb.solver.solve()
+    st = tb.contact._state[0]
+    p_exact = E * delta / (tb.H + E / tb.eps)
+    p_loc = st["p"][st["active"]]
+    comm = MPI.COMM_WORLD
+    p_min = comm.allreduce(float(p_loc.min(initial=np.inf)), op=MPI.MIN)
+    p_max = comm.allreduce(float(p_loc.max(initial=0.0)), op=MPI.MAX)
+    assert p_min == pytest.approx(p_exact, rel=1e-2)
+    assert p_max == pytest.approx(p_exact, rel=1e-2)
+    r = tb.contact.resultants()["interface"]
+    assert r["area"] == pytest.approx(1.0, rel=1e-12)
+    assert r["force"][2] == pytest.approx(p_exact, rel=1e-2)
+    base = _reaction(tb.form, tb.base_dofs)
+    top = _reaction(tb.form, tb.top_dofs)
+    tol = 1e-5 * p_exact  # snes_atol 1e-6 N on a 1 N... force scale
+    assert base + top == pytest.approx(0.0, abs=tol)
+    assert -top == pytest.approx(r["force"][2], abs=tol)
+    assert tb.contact.stats.pattern_merges >= 1
+
+
+@pytest.mark.mpi
+def test_large_sliding_is_path_independent():
+    """Frictionless, elastic: an upper block dragged over 6 master elements ends in the state of
+    a block placed there and pressed (same contact force within 0.5 %), and the pairing
+    follows it: the master facets in contact are all different ones at the end."""
+    up, lo = (0.3, 0.3, 0.2), (1.6, 0.6, 0.3)
+    dragged = TwoBlocks(
+        upper=up, lower=lo, offset=(0.1, 0.15), h_upper=0.06, h_lower=0.1, drag=True
+    )
+    dragged.top_z.value = -2e-4
+    dragged.solver.solve()
+    first = set(np.unique(dragged.contact._state[0]["m_idx"][dragged.contact._state[0]["active"]]))
+    for s in np.linspace(0.1, 0.6, 6):
+        dragged.top_x.value = s
+        dragged.solver.solve()
+    last = set(np.unique(dragged.contact._state[0]["m_idx"][dragged.contact._state[0]["active"]]))
+    assert not (first & last) or MPI.COMM_WORLD.size > 1
+    placed = TwoBlocks(upper=up, lower=lo, offset=(0.7, 0.15), h_upper=0.06, h_lower=0.1, drag=True)
+    placed.top_z.value = -2e-4
+    placed.solver.solve()
+    f_drag = dragged.contact.resultants()["interface"]["force"]
+    f_place = placed.contact.resultants()["interface"]["force"]
+    assert f_drag[2] == pytest.approx(f_place[2], rel=5e-3)
+    # frictionless: the force is normal to the master facets, which tilt only by the
+    # deformation (strain ~1e-3)
+    assert abs(f_drag[0]) <= 1e-4 * f_drag[2]
+
+
+# ---- friction ----------------------------------------------------------------------------------
+@pytest.mark.mpi
+def test_friction_block_dragged_needs_mu_n():
+    """A column (ν = 0: no lateral slip) pressed on a rigid flat, then dragged sideways a
+    thousand times the regularisation slip: the tangential reaction is μ times the normal one.
+    (The regularised law is stiff where the slip is small: Newton needs a backtracking line
+    search there.)"""
+    mu = 0.3
+    col = Column(
+        Plane((0, 0, 0), (0, 0, 1)),
+        100 * E / 2.0,
+        friction=mu,
+        slip=1e-6,
+        poisson=0.0,
+        options={"snes_linesearch_type": "bt", "snes_max_it": 50},
+    )
+    col.top_z.value = -1e-3
+    col.solve()
+    col.contact.commit()
+    col.top_x.value = 2e-3
+    col.solve()
+    r = col.contact.resultants()["base"]
+    fx, fz = col.reaction(0), col.reaction(2)
+    assert r["force"][0] < 0  # friction on the column opposes the drag (+x)
+    assert abs(fx) == pytest.approx(mu * abs(fz), rel=1e-4)
+    assert r["force"][0] == pytest.approx(-fx, rel=1e-6)
+    assert r["force"][2] == pytest.approx(-fz, rel=1e-6)
+    assert r["max_shear"] > 0
+
+
+# ---- robustness --------------------------------------------------------------------------------
+def test_bad_contact_input():
+    """Unknown tags, interior facets, bad penalties, hexahedra: clear errors before any solve."""
+    mesh, ft, V = _column((2, 2, 2))
+    u = dolfinx.fem.Function(V)
+    plane = Plane((0, 0, 0), (0, 0, 1))
+    with pytest.raises(ContactError, match="facet tag 99"):
+        Contact(V, u, ft, [ContactPair("p", (99,), plane, 1.0)])
+    with pytest.raises(ContactError, match="penalty"):
+        ContactPair("p", (BOTTOM,), plane, -1.0)
+    with pytest.raises(ContactError, match="method"):
+        ContactPair("p", (BOTTOM,), plane, 1.0, method="lagrange")
+    with pytest.raises(ContactError, match="radius"):
+        Sphere((0, 0, 0), 0.0)
+    mesh.topology.create_entities(2)
+    interior = dolfinx.mesh.locate_entities(mesh, 2, lambda x: np.isclose(x[2], 1.0))
+    ft2 = dolfinx.mesh.meshtags(mesh, 2, np.sort(interior), np.full(len(interior), 5, np.int32))
+    with pytest.raises(ContactError, match="inside a body"):
+        Contact(V, u, ft2, [ContactPair("p", (5,), plane, 1.0)])
+    hexes = dolfinx.mesh.create_unit_cube(MPI.COMM_WORLD, 1, 1, 1, dolfinx.mesh.CellType.hexahedron)
+    Vh = dolfinx.fem.VectorFunctionSpace(hexes, ("CG", 1))
+    fh = dolfinx.mesh.locate_entities_boundary(hexes, 2, lambda x: np.isclose(x[2], 0))
+    fth = dolfinx.mesh.meshtags(hexes, 2, fh, np.full(len(fh), 1, np.int32))
+    with pytest.raises(ContactError, match="tetrahedral"):
+        Contact(Vh, dolfinx.fem.Function(Vh), fth, [ContactPair("p", (1,), plane, 1.0)])
+
+
+@pytest.mark.mpi
+def test_failing_contact_step_is_cut_back():
+    """A ball driven to its full approach in one step with at most 3 Newton iterations does
+    not converge (the active set keeps changing); march cuts the step back and reaches the
+    same state as a run in small steps."""
+    from shoulder_fem import hertz
+
+    model = hertz.build(load_scene("hertz"), "coarse", MPI.COMM_WORLD)
+    delta = model.theory().approach
+
+    def press(options):
+        problem = hertz.HertzProblem(model, options)
+
+        def advance(t0, t1):
+            problem.minus_approach.value = -t1 * delta
+            problem.solver.solve(step=f"t={t1}")
+
+        stats = march(
+            np.array([0.0, 1.0]),
+            advance,
+            lambda: problem.u.x.array.copy(),
+            lambda s: problem.u.x.array.__setitem__(slice(None), s),
+            stats=StepperStats(),
+        )
+        return problem.contact_force(), stats
+
+    with pytest.raises(ConvergenceError):
+        problem = hertz.HertzProblem(model, {"snes_max_it": 3})
+        problem.minus_approach.value = -delta
+        problem.solver.solve(step="one step")
+    force, stats = press({"snes_max_it": 3})
+    assert stats.cutbacks >= 1
+    ref, _ = press({"snes_max_it": 50})
+    assert force == pytest.approx(ref, rel=1e-7)
+
+
+# ---- Hertz -------------------------------------------------------------------------------------
+def test_hertz_formulas_by_hand():
+    """Hertz's formulas on a case computed by hand: F = 10 kN, R = 24 mm, E = 210 GPa, ν = 0.3
+    on a rigid flat: E* = 230.77 GPa, a = 0.9205 mm, p0 = 5.635 GPa, δ = 35.31 µm."""
+    s = hertz_solution(1e4, 0.024, 210e9, 0.3)
+    assert s.effective_modulus == pytest.approx(210e9 / 0.91)
+    assert s.contact_radius == pytest.approx((3 * 1e4 * 0.024 * 0.91 / (4 * 210e9)) ** (1 / 3))
+    assert s.contact_radius == pytest.approx(0.9205e-3, rel=1e-4)
+    assert s.max_pressure == pytest.approx(5.635e9, rel=1e-3)
+    assert s.approach == pytest.approx(35.31e-6, rel=1e-3)
+    sock = hertz_solution(1e4, 0.024, 210e9, 0.3, socket_radius=0.027)
+    assert sock.effective_radius == pytest.approx(0.024 * 0.027 / 0.003)
+
+
+def test_hertz_sphere_on_flat_converges(comm_tmp):
+    """Peak pressure and contact radius within 5 % of Hertz at the medium mesh, and the peak
+    pressure error smaller at medium than at coarse."""
+    errors = {}
+    for level in ("coarse", "medium"):
+        res = run("hertz", "coupled", level=level, out=comm_tmp / level)
+        p = res.probes
+        assert p["contact_force"] == pytest.approx(1e4, rel=2e-4)
+        assert p["top_reaction_force"] == pytest.approx(-p["contact_force"], rel=1e-7)
+        errors[level] = (p["max_pressure_rel_error"], p["contact_radius_rel_error"])
+        assert res.parameters["socket_radius"] is None
+        assert res.parameters["counterpart_youngs_modulus"] == "rigid"
+    assert abs(errors["medium"][0]) < 0.05 and abs(errors["medium"][1]) < 0.05
+    assert abs(errors["medium"][0]) < abs(errors["coarse"][0])
+
+
+def test_ball_in_socket_against_conforming_hertz(comm_tmp):
+    """Ball (R = 24 mm) in a rigid socket (27 mm): peak pressure and contact radius against the
+    conforming Hertz estimate R* = R Rs/(Rs − R) = 216 mm within 7.5 % (a/R = 0.1 here, where
+    the half-space estimate itself is only approximate)."""
+    scene = load_scene("hertz").with_values(geometry="socket")
+    res = run(scene, "coupled", level="coarse", out=comm_tmp / "socket")
+    p = res.probes
+    assert res.parameters["socket_radius"] == pytest.approx(0.027)
+    theory = hertz_solution(1e4, 0.024, 210e9, 0.3, 0.027)
+    assert p["hertz_contact_radius"] == pytest.approx(theory.contact_radius)
+    assert abs(p["max_pressure_rel_error"]) < 0.075
+    assert abs(p["contact_radius_rel_error"]) < 0.075
+
+
+@pytest.mark.mpi
+def test_hertz_serial_and_mpi_agree(comm_tmp):
+    """The Hertz run on all ranks and on each rank alone: the same probes (1e-6 relative: the
+    secant on the approach stops at a force tolerance, so the iterates may differ slightly)."""
+    world = run("hertz", "coupled", level="coarse", out=comm_tmp / "world")
+    alone = run(
+        "hertz",
+        "coupled",
+        level="coarse",
+        out=comm_tmp / f"self{MPI.COMM_WORLD.rank}",
+        comm=MPI.COMM_SELF,
+    )
+    assert world.ranks == MPI.COMM_WORLD.size
+    for name in ("contact_force", "max_contact_pressure", "contact_radius", "approach"):
+        assert world.probes[name] == pytest.approx(alone.probes[name], rel=1e-6), name
+    assert math.isfinite(world.probes["max_penetration"])
+
+
+# ---- a rigid body's surface as a contact master (rigid_bodies + contact) ----------------------
+@pytest.mark.mpi
+def test_rigid_plate_presses_column_through_contact():
+    """A plate whose whole boundary is tied to a rigid body (6 DOFs, held sideways by
+    springs) is pushed by a force F onto a column (ν = 0, base fixed) through contact, the plate's
+    bottom being the (rigid) master: the plate moves by F H/(E A) + F/(ε A), the contact force
+    is F, and the plate's balance (tie + springs + load) closes to the solver tolerance."""
+    from shoulder_fem.rigid_bodies import RigidBody, RigidSystem, Tie
+    from shoulder_fem.springs import GROUND, Spring
+
+    a, H, t = 0.5, 1.0, 0.2
+    mesh, _, ft = cb.build_two_blocks(
+        MPI.COMM_WORLD, (a, a, H), (1.0, 1.0, t), 0.2, 0.25, offset=(-0.25, -0.25)
+    )
+    # the column sits on z in [-H, 0], the plate on [0, t]
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("CG", 1))
+    u = dolfinx.fem.Function(V)
+    w = ufl.TestFunction(V)
+    F_int = vp.internal_power_linear(materials.LinearElastic(E, 0.0), u, w, ufl.dx(domain=mesh))
+    plate_faces = [
+        "upper_bottom",
+        "upper_top",
+        "upper_xmin",
+        "upper_xmax",
+        "upper_ymin",
+        "upper_ymax",
+    ]
+    markers = {
+        m.name: m.id
+        for m in (
+            cb.LOWER_BOTTOM,
+            cb.UPPER_BOTTOM,
+            cb.UPPER_TOP,
+            cb.UPPER_XMIN,
+            cb.UPPER_XMAX,
+            cb.UPPER_YMIN,
+            cb.UPPER_YMAX,
+        )
+    }
+    surfaces = {name: (ft, tag) for name, tag in markers.items()}
+    force = 2e5
+    c0 = np.array([0.25, 0.25, t / 2])
+    plate = RigidBody("plate", c0, force=[0.0, 0.0, -force])
+    # lateral springs: no force at equilibrium; stiff enough to dominate the follower-force
+    # terms of a tilting master that the mesh-master tangent leaves out (F/a = 4e5 N/m)
+    k = 1e8
+    springs = [
+        Spring("sx", "plate", c0 + [0.5, 0.0, 0.0], GROUND, c0 + [1.5, 0.0, 0.0], k),
+        Spring("sy", "plate", c0 + [0.0, 0.5, 0.0], GROUND, c0 + [0.0, 1.5, 0.0], k),
+        Spring("sy2", "plate", c0 + [0.5, 0.5, 0.0], GROUND, c0 + [0.5, 1.5, 0.0], k),
+    ]
+    eps = 1e3 * E / H
+    pair = ContactPair("plate", (cb.LOWER_TOP.id,), MeshSurface((cb.UPPER_BOTTOM.id,)), eps)
+    contact = Contact(V, u, ft, [pair], quadrature_degree=0)
+    system = RigidSystem(
+        [plate],
+        springs,
+        u=u,
+        residual=F_int,
+        surfaces=surfaces,
+        ties=[Tie("plate", f) for f in plate_faces],
+        fixed=["lower_bottom"],
+        contact=contact,
+        options={"snes_atol": 1e-6, "snes_rtol": 1e-12},
+    )
+    # start in contact (frictionless contact is all that holds the plate vertically)
+    system.move("plate", [0.0, 0.0, -1e-4], np.eye(3))
+    its = system.solve("press")
+    A = a * a
+    expected = -(force * H / (E * A) + force / (eps * A))
+    assert plate.translation[2] == pytest.approx(expected, rel=1e-6)
+    # sideways only by the springs' second-order stretch δ²/(2 L) as the plate sinks
+    assert np.allclose(plate.translation[:2], 0.0, atol=1e-3 * abs(expected))
+    assert np.allclose(plate.rotation, np.eye(3), atol=1e-7)
+    r = contact.resultants()["plate"]
+    assert r["force"][2] == pytest.approx(-force, rel=1e-6)  # on the column top, downwards
+    bal = system.balance("plate")
+    np.testing.assert_allclose(bal.force_sum, 0.0, atol=1e-6 * force)
+    np.testing.assert_allclose(bal.moment_sum, 0.0, atol=1e-6 * force * a)
+    assert its <= 6

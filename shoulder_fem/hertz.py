@@ -394,13 +394,18 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
     recorder.set_series("pressure_profile", r, p, "m", "Pa")
     if theory is not None and len(r):
         rr = np.linspace(0.0, theory.contact_radius, 50)
-        recorder.set_series(
-            "hertz_pressure_profile",
-            rr,
-            theory.max_pressure * np.sqrt(np.clip(1 - (rr / theory.contact_radius) ** 2, 0, 1)),
-            "m",
-            "Pa",
-        )
+        pp = theory.max_pressure * np.sqrt(np.clip(1 - (rr / theory.contact_radius) ** 2, 0, 1))
+        recorder.set_series("hertz_pressure_profile", rr, pp, "m", "Pa")
+        if problem.u.function_space.mesh.comm.rank == 0:
+            from .plots import plot_pressure_profile
+
+            plot_pressure_profile(
+                r,
+                p,
+                (rr, pp),
+                recorder.folder / "pressure_profile.png",
+                title=f"hertz ({model.geometry}, {model.level}): F = {reached:.4g} N",
+            )
     stats = problem.solver.stats
     recorder.count("steps", model.load_steps)
     recorder.count("newton_iterations", stats.newton_iterations)

@@ -105,3 +105,35 @@ def plot_cpu_vs_error(points: list[dict], path: Path, title: str) -> Path:
     ax.set_title(title)
     ax.grid(alpha=0.3, which="both")
     return _save(fig, path)
+
+
+def plot_pressure_profile(
+    r: np.ndarray,
+    p: np.ndarray,
+    theory: tuple[np.ndarray, np.ndarray],
+    path: Path,
+    title: str = "contact pressure",
+) -> Path:
+    """Contact pressure at the contact points against their distance from the axis.
+
+    With the analytic profile ``theory`` = (r, p), e.g. Hertz's p0 sqrt(1 - r²/a²); SI in,
+    mm and MPa on the axes.
+    """
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ax.plot(
+        np.asarray(r) * 1e3, np.asarray(p) * 1e-6, ".", ms=3, color="C0", label="FE contact points"
+    )
+    ax.plot(
+        np.asarray(theory[0]) * 1e3,
+        np.asarray(theory[1]) * 1e-6,
+        "-",
+        color="k",
+        lw=1.5,
+        label="Hertz",
+    )
+    ax.set_xlabel("distance from the axis (mm)")
+    ax.set_ylabel("contact pressure (MPa)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save(fig, path)

@@ -1118,6 +1118,23 @@ class Contact:
             )
         return out
 
+    def record(self, recorder, prefix: str = "", point: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """Put every pair's resultants in a run's probes as ``<prefix><pair>_<name>`` (SI)."""
+        units = {
+            "force": "N",
+            "moment": "N*m",
+            "normal_force": "N",
+            "area": "m^2",
+            "max_pressure": "Pa",
+            "max_shear": "Pa",
+            "centre_of_pressure": "m",
+            "max_penetration": "m",
+            "active_points": "1",
+        }
+        for pair, res in self.resultants(point).items():
+            for key, unit in units.items():
+                recorder.set_probe(f"{prefix}{pair}_{key}", res[key], unit)
+
     def pressure_fields(self) -> tuple[dolfinx.fem.Function, dolfinx.fem.Function]:
         """Nodal contact pressure and shear (Pa) on the slave surfaces, as CG1 fields.
 

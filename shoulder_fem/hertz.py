@@ -382,6 +382,7 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
     recorder.set_probe("contact_area", SYMMETRY_FACTOR * res["area"], "m^2")
     recorder.set_probe("approach", problem.delta, "m")
     recorder.set_probe("max_penetration", res["max_penetration"], "m")
+    problem.contact.record(recorder, prefix="quarter_")  # the modelled quarter's resultants
     if theory is not None:
         recorder.set_probe("hertz_max_pressure", theory.max_pressure, "Pa")
         recorder.set_probe("hertz_contact_radius", theory.contact_radius, "m")

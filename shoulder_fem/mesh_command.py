@@ -277,7 +277,9 @@ def mesh_statistics(sm) -> dict:
         "min_volume_m3": float(
             comm.allreduce(float(vol.min()) if len(vol) else np.inf, op=MPI.MIN)
         ),
-        "bound_checked": "every volume > 0 and min > 2e-3 (tests, coarse level)",
+        "bound_checked": (
+            "every volume > 0, min > 0.02, 1 % quantile > 0.05, median > 0.4 (tests, coarse)"
+        ),
     }
     facet_counts = {}
     ft = sm.facet_tags

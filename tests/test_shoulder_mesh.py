@@ -1,10 +1,10 @@
 """The parametric shoulder mesh measures what its parameters say (coarse level only).
 
 Quality bound used below (coarse level): every tetrahedron has a positive volume and a
-mean-ratio quality q = 6 sqrt(2) V / l_rms^3 (1 for the regular tetrahedron) above 2e-3, and the
-median above 0.3. The coarse level is deliberately coarser than the thin bodies (8 mm muscles,
-1.5-2 mm cartilage, a 2-10 mm blade), so it has flat elements; the paper level measures
-min q ~ 0.03, 1 % quantile ~ 0.2 (mesh.json).
+mean-ratio quality q = 6 sqrt(2) V / l_rms^3 (1 for the regular tetrahedron) above 0.02, the 1 %
+quantile above 0.05 and the median above 0.4 (measured: min 0.038, 1 % 0.076, median 0.49). The
+coarse muscles (25 mm elements in 8 mm bellies) and the 12.5 mm cartilage elements stay flatter
+than the finer levels' (paper: see README "Meshing the shoulder").
 """
 
 from __future__ import annotations
@@ -185,9 +185,11 @@ def test_element_quality(deformable):
     vol = np.abs(np.einsum("ij,ij->i", e[0], np.cross(e[1], e[2]))) / 6.0
     l_rms = np.sqrt(np.mean([np.sum(v**2, axis=1) for v in e], axis=0))
     quality = 6 * np.sqrt(2) * vol / l_rms**3
+    q_all = np.concatenate(mesh.comm.allgather(quality))
     assert np.all(vol > 0)
-    assert np.min(quality) > 2e-3
-    assert np.median(quality) > 0.3
+    assert np.min(q_all) > 0.02
+    assert np.quantile(q_all, 0.01) > 0.05
+    assert np.median(q_all) > 0.4
 
 
 def test_bonded_interfaces_share_nodes_sliding_do_not(deformable):

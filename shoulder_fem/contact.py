@@ -70,6 +70,24 @@ _TET_FACET_VERTICES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
 _TET_EDGE = {(2, 3): 0, (1, 3): 1, (1, 2): 2, (0, 3): 3, (0, 2): 4, (0, 1): 5}
 #: The 4 flat sub-triangles of a P2 facet in canonical node order (v0 v1 v2 e01 e12 e20).
 _P2_SUBTRIANGLES = ((0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5))
+#: Barycentric coordinates of the 6 canonical nodes of a P2 triangle.
+_NODE_MU = np.array(
+    [[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0], [0, 0.5, 0.5], [0.5, 0, 0.5]], dtype=float
+)
+
+
+def _p2_shape(mu: np.ndarray) -> np.ndarray:
+    """P2 triangle shape functions (canonical order) at barycentric points mu (q, 3)."""
+    return np.column_stack(
+        [
+            mu[:, 0] * (2 * mu[:, 0] - 1),
+            mu[:, 1] * (2 * mu[:, 1] - 1),
+            mu[:, 2] * (2 * mu[:, 2] - 1),
+            4 * mu[:, 0] * mu[:, 1],
+            4 * mu[:, 1] * mu[:, 2],
+            4 * mu[:, 2] * mu[:, 0],
+        ]
+    )
 
 
 class ContactError(ValueError):
@@ -383,6 +401,8 @@ class _Master:
     X: np.ndarray  # (nm, 3) reference coordinates
     boundary: np.ndarray  # (nt, 3) bool: edge k (ab, bc, ca) lies on the master's rim
     counts: list[int]  # owned master nodes per rank
+    parent: np.ndarray | None = None  # (nt, 6) P2: the parent facet's nodes (gathered list)
+    tri_mu: np.ndarray | None = None  # (nt, 3, 3) P2: the triangle's vertices in the parent
     x: np.ndarray | None = None  # (nm, 3) current positions
     x_prev: np.ndarray | None = None  # (nm, 3) positions at the last committed step
 
@@ -424,7 +444,20 @@ def _gather_master(V, facets: _Facets, comm: MPI.Comm) -> _Master:
     keys = edges[..., 0] * len(gdofs) + edges[..., 1]
     uniq, inv, cnt = np.unique(keys.ravel(), return_inverse=True, return_counts=True)
     boundary = (cnt[inv] == 1).reshape(-1, 3)
-    return _Master(owned, index, gdofs, X, boundary, counts)
+    master = _Master(owned, index, gdofs, X, boundary, counts)
+    if facets.nodes.shape[1] == 6:  # P2: each flat triangle remembers its curved parent
+        nf = len(facets.nodes)
+        par_local = np.concatenate([facets.nodes] * len(sub)) if nf else np.zeros((0, 6), int)
+        par_global = (
+            imap.local_to_global(par_local.ravel().astype(np.int32)).reshape(-1, 6)
+            if nf
+            else np.zeros((0, 6), dtype=np.int64)
+        )
+        parents = np.concatenate(comm.allgather(par_global))
+        master.parent = order[np.searchsorted(gdofs[order], parents)]
+        mu = np.concatenate([np.broadcast_to(_NODE_MU[list(t)], (nf, 3, 3)) for t in sub])
+        master.tri_mu = np.concatenate(comm.allgather(mu.reshape(-1, 3, 3)))
+    return master
 
 
 def _local_keys(K: PETSc.Mat) -> np.ndarray:
@@ -502,12 +535,11 @@ def _barycentric_2d(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return np.stack([1.0 - l1 - l2, l1, l2], axis=-1)
 
 
-#: Degree-2 rule on a triangle (barycentric points, weights summing to 1).
-_SEG_POINTS = np.array([[2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
-_SEG_WEIGHTS = np.full(3, 1.0 / 3.0)
-_NODE_MU = np.array(
-    [[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0], [0, 0.5, 0.5], [0.5, 0, 0.5]], dtype=float
-)
+def _segment_rule(degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """A rule on a triangle: barycentric points and weights summing to 1."""
+    pts, wts = basix.make_quadrature(basix.QuadratureType.Default, basix.CellType.triangle, degree)
+    mu = np.column_stack([1.0 - pts[:, 0] - pts[:, 1], pts[:, 0], pts[:, 1]])
+    return mu, 2.0 * wts
 
 
 # ---- the contact terms -----------------------------------------------------------------------
@@ -578,6 +610,8 @@ class Contact:
         if self.degree == 2 and slave_integration == "subtriangles":
             self._N, self._N1, self._w = _subtriangle_rule(points, self._w)
         self._pieces = np.array([(0, 1, 2)] if self.degree == 1 else _P2_SUBTRIANGLES)
+        # segments: linear x linear integrands for P1, quadratic x linear for P2
+        self._seg_rule = _segment_rule(2 if self.degree == 1 else 4)
         imap = V.dofmap.index_map
         self._l2g = imap.local_to_global(
             np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
@@ -750,9 +784,10 @@ class Contact:
         if len(r) == 0:
             return empty
         corners = np.stack([A[r, 0], B[r, f], C[r, f]], axis=1)  # (S, 3, 2)
-        pts = np.einsum("qk,skd->sqd", _SEG_POINTS, corners).reshape(-1, 2)
-        rr = np.repeat(r, len(_SEG_WEIGHTS))
-        W = (np.abs(area2[r, f])[:, None] * _SEG_WEIGHTS[None, :]).ravel()
+        seg_mu, seg_w = self._seg_rule
+        pts = np.einsum("qk,skd->sqd", seg_mu, corners).reshape(-1, 2)
+        rr = np.repeat(r, len(seg_w))
+        W = (np.abs(area2[r, f])[:, None] * seg_w[None, :]).ravel()
         W = W / s_area[rr] * ref_area[j[rr]]
         lam_s = _barycentric_2d(pts, s2[rr])
         beta = _barycentric_2d(pts, m2[rr])  # on the master's own vertex order
@@ -762,6 +797,8 @@ class Contact:
         cols = pieces[piece_id[pj]]  # (npts, 3)
         np.add.at(N, (np.arange(len(pts))[:, None], cols), lam_s)
         N1 = np.einsum("qk,qkj->qj", lam_s, _NODE_MU[cols])
+        if nn == 6:  # P2: the slave's own quadratic functions (consistent loads)
+            N = _p2_shape(N1)
         return dict(facet=piece_facet[pj], N=N, N1=N1, W=W, m_tri=t[rr], bary=beta)
 
     def _evaluate_pair(self, i: int, pair: ContactPair, sl: _Facets, x_nodes: np.ndarray) -> dict:
@@ -781,8 +818,11 @@ class Contact:
             if "m_tri" in pts:
                 t = pts["m_tri"]
                 m_idx, bary = master.index[t], pts["bary"]
-                xm = np.einsum("qk,qki->qi", bary, master.x[m_idx])
                 tri = master.x[m_idx]
+                if master.parent is not None:  # P2 master: its own quadratic functions
+                    bary = _p2_shape(np.einsum("qk,qkj->qj", bary, master.tri_mu[t]))
+                    m_idx = master.parent[t]
+                xm = np.einsum("qk,qki->qi", bary, master.x[m_idx])
                 n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
                 n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
                 g = np.einsum("qi,qi->q", xq - xm, n)
@@ -914,7 +954,7 @@ class Contact:
             if st["dndx"] is not None:  # analytic master: rotation of the normal (slave only)
                 dn = st["dndx"][act]
                 blk = blk - np.einsum("q,qa,qb,qij->qaibj", p, coef, coef, dn)
-            if st["m_idx"] is not None:
+            if st["m_idx"] is not None and st["m_idx"].shape[1] == 3:  # flat master facets
                 blk = blk + self._master_geometric_terms(i, act, coef, p)
             blk = blk * W[:, None, None, None, None]
             k = coef.shape[1]

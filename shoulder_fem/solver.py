@@ -200,6 +200,14 @@ class NonlinearSolver:
         if linear:
             opts["snes_type"] = "ksponly"
         opts.update(options or {})
+        if (
+            contact is not None
+            and any(pair.friction > 0 for pair in contact.pairs)
+            and "snes_linesearch_type" not in (options or {})
+        ):
+            # the regularised friction law is stiff where the slip is small: full Newton steps
+            # can cycle there (measured on a dragged block); backtracking settles it
+            opts["snes_linesearch_type"] = "bt"
         if lagged_factorization and opts.get("ksp_type") in ("preonly", "cg"):
             # A stale factorization applied once (preonly) would silently give a wrong answer,
             # and the drifting operator need not be symmetric (cg): iterate with GMRES.

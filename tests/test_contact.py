@@ -270,12 +270,13 @@ class TwoBlocks:
         lower=(1.0, 1.0, 0.5),
         h_lower=0.2,
         penalty=None,
+        degree=1,
     ):
         self.mesh, _, self.ft = cb.build_two_blocks(
             MPI.COMM_WORLD, lower, upper, h_lower, h_upper, offset=offset
         )
         self.H = lower[2] + upper[2]
-        V = self.V = dolfinx.fem.VectorFunctionSpace(self.mesh, ("CG", 1))
+        V = self.V = dolfinx.fem.VectorFunctionSpace(self.mesh, ("CG", degree))
         self.u = dolfinx.fem.Function(V)
         w = ufl.TestFunction(V)
         dx = ufl.Measure("dx", domain=self.mesh)
@@ -312,11 +313,13 @@ class TwoBlocks:
 
 
 @pytest.mark.mpi
-def test_patch_test_non_matching_meshes_and_action_reaction():
-    """Two blocks with non-matching interface meshes transmit a uniform pressure within 1 %
-    (exact: p = E δ/(H + E/ε)); the contact force, the reaction at the lower block's base and
-    the force on the upper block's top balance to the solver tolerance."""
-    tb = TwoBlocks()
+@pytest.mark.parametrize("degree", [1, 2])
+def test_patch_test_non_matching_meshes_and_action_reaction(degree):
+    """Two blocks with non-matching interface meshes (P1 or P2) transmit a uniform pressure
+    within 1 % (exact: p = E δ/(H + E/ε); the segment integration makes it exact to round-off);
+    the contact force, the reaction at the lower block's base and the force on the upper
+    block's top balance to the solver tolerance."""
+    tb = TwoBlocks(degree=degree)
     delta = 1e-3
     tb.top_z.value = -delta
     tb.solver.solve()
@@ -326,14 +329,14 @@ def test_patch_test_non_matching_meshes_and_action_reaction():
     comm = MPI.COMM_WORLD
     p_min = comm.allreduce(float(p_loc.min(initial=np.inf)), op=MPI.MIN)
     p_max = comm.allreduce(float(p_loc.max(initial=0.0)), op=MPI.MAX)
-    assert p_min == pytest.approx(p_exact, rel=1e-2)
-    assert p_max == pytest.approx(p_exact, rel=1e-2)
+    assert p_min == pytest.approx(p_exact, rel=1e-6)  # the issue asks 1 %
+    assert p_max == pytest.approx(p_exact, rel=1e-6)
     r = tb.contact.resultants()["interface"]
     assert r["area"] == pytest.approx(1.0, rel=1e-12)
-    assert r["force"][2] == pytest.approx(p_exact, rel=1e-2)
+    assert r["force"][2] == pytest.approx(p_exact, rel=1e-6)
     base = _reaction(tb.form, tb.base_dofs)
     top = _reaction(tb.form, tb.top_dofs)
-    tol = 1e-5 * p_exact  # snes_atol 1e-6 N on a 1 N... force scale
+    tol = 1e-9 * p_exact  # the Newton residual is converged to 1e-6 N on forces ~1e6 N
     assert base + top == pytest.approx(0.0, abs=tol)
     assert -top == pytest.approx(r["force"][2], abs=tol)
     assert tb.contact.stats.pattern_merges >= 1

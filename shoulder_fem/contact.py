@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import basix
 import dolfinx
 import numpy as np
+import scipy.sparse
 from mpi4py import MPI
 from petsc4py import PETSc
 from scipy.spatial import cKDTree
@@ -957,16 +958,25 @@ class Contact:
             if st["m_idx"] is not None and st["m_idx"].shape[1] == 3:  # flat master facets
                 blk = blk + self._master_geometric_terms(i, act, coef, p)
             blk = blk * W[:, None, None, None, None]
+            # points that couple the same nodes (one slave facet, one master facet) share
+            # their block: sum them before expanding to triplets
+            groups, inv = np.unique(blocks, axis=0, return_inverse=True)
+            inv = inv.ravel()
+            order = np.argsort(inv, kind="stable")
+            starts = np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]
             k = coef.shape[1]
-            r = 3 * blocks[:, :, None] + np.arange(3)  # (nqa, k, 3)
-            rows.append(np.broadcast_to(r[:, :, :, None, None], (len(act), k, 3, k, 3)).ravel())
-            cols.append(np.broadcast_to(r[:, None, None, :, :], (len(act), k, 3, k, 3)).ravel())
-            vals.append(blk.ravel())
+            blk = np.add.reduceat(blk[order].reshape(len(act), -1), starts, axis=0)
+            blk = blk.reshape(len(groups), k, 3, k, 3)
+            r = 3 * groups[:, :, None] + np.arange(3)  # (ng, k, 3)
+            bc = np.isin(r, self._bc_global)
+            keep = ~(bc[:, :, :, None, None] | bc[:, None, None, :, :])
+            shape = (len(groups), k, 3, k, 3)
+            rows.append(np.broadcast_to(r[:, :, :, None, None], shape)[keep])
+            cols.append(np.broadcast_to(r[:, None, None, :, :], shape)[keep])
+            vals.append(blk[keep])
         if not rows:
             return (np.zeros(0, dtype=np.int64),) * 2 + (np.zeros(0),)
-        rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-        keep = ~(np.isin(rows, self._bc_global) | np.isin(cols, self._bc_global))
-        return rows[keep], cols[keep], vals[keep]
+        return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
 
     def _master_geometric_terms(self, i: int, act, coef, p) -> np.ndarray:
         """Tangent terms of a mesh master's geometry, per unit weight.
@@ -1012,33 +1022,39 @@ class Contact:
         self._ensure()
         t0 = time.perf_counter()
         rows, cols, vals = self._jacobian_triplets()
-        ranges = np.asarray(A.getOwnershipRanges())
-        dest = np.searchsorted(ranges, rows, side="right") - 1
-        send = [(rows[dest == r], cols[dest == r], vals[dest == r]) for r in range(self.comm.size)]
-        recv = self.comm.alltoall(send)
-        rows = np.concatenate([r[0] for r in recv]).astype(np.int64)
-        cols = np.concatenate([r[1] for r in recv]).astype(np.int64)
-        vals = np.concatenate([r[2] for r in recv])
+        if self.comm.size > 1:  # route every triplet to the rank owning its row
+            ranges = np.asarray(A.getOwnershipRanges())
+            dest = np.searchsorted(ranges, rows, side="right") - 1
+            order = np.argsort(dest, kind="stable")
+            bounds = np.searchsorted(dest[order], np.arange(self.comm.size + 1))
+            rows, cols, vals = rows[order], cols[order], vals[order]
+            send = [
+                (rows[a:b], cols[a:b], vals[a:b])
+                for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+            ]
+            recv = self.comm.alltoall(send)
+            rows = np.concatenate([r[0] for r in recv]).astype(np.int64)
+            cols = np.concatenate([r[1] for r in recv]).astype(np.int64)
+            vals = np.concatenate([r[2] for r in recv])
         r0, r1 = A.getOwnershipRange()
         c0, c1 = A.getOwnershipRangeColumn()
         ncol = A.getSize()[1]
-        keys = rows * ncol + cols
-        uniq, inv = np.unique(keys, return_inverse=True)
-        summed = np.bincount(inv, weights=vals, minlength=len(uniq))
-        ur, uc = uniq // ncol, uniq % ncol
         nloc = r1 - r0
-        indptr = np.zeros(nloc + 1, dtype=PETSc.IntType)
-        np.add.at(indptr, ur - r0 + 1, 1)
-        indptr = np.cumsum(indptr).astype(PETSc.IntType)
+        csr = scipy.sparse.coo_matrix((vals, (rows - r0, cols)), shape=(nloc, ncol)).tocsr()
+        csr.sum_duplicates()
+        csr.sort_indices()
+        indptr = csr.indptr.astype(PETSc.IntType)
+        uc = csr.indices.astype(np.int64)
+        ur = r0 + np.repeat(np.arange(nloc), np.diff(csr.indptr))
         diag = (uc >= c0) & (uc < c1)
         d_nnz = np.bincount(ur[diag] - r0, minlength=nloc).astype(PETSc.IntType)
         o_nnz = np.bincount(ur[~diag] - r0, minlength=nloc).astype(PETSc.IntType)
         K = PETSc.Mat().createAIJ(A.getSizes(), nnz=(d_nnz, o_nnz), comm=self.comm)
         K.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
-        if len(uniq):
-            K.setValuesCSR(indptr, uc.astype(PETSc.IntType), summed)
+        if len(uc):
+            K.setValuesCSR(indptr, uc.astype(PETSc.IntType), csr.data)
         K.assemble()
-        self._pattern_keys = uniq
+        self._pattern_keys = ur.astype(np.int64) * ncol + uc
         self.stats.assembly_s += time.perf_counter() - t0
         return K
 

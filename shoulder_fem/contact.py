@@ -402,13 +402,14 @@ class _Master:
     X: np.ndarray  # (nm, 3) reference coordinates
     boundary: np.ndarray  # (nt, 3) bool: edge k (ab, bc, ca) lies on the master's rim
     counts: list[int]  # owned master nodes per rank
+    rows: np.ndarray  # (nm, 3) global rows of the gathered master nodes' components
     parent: np.ndarray | None = None  # (nt, 6) P2: the parent facet's nodes (gathered list)
     tri_mu: np.ndarray | None = None  # (nt, 3, 3) P2: the triangle's vertices in the parent
     x: np.ndarray | None = None  # (nm, 3) current positions
     x_prev: np.ndarray | None = None  # (nm, 3) positions at the last committed step
 
 
-def _gather_master(V, facets: _Facets, comm: MPI.Comm) -> _Master:
+def _gather_master(V, facets: _Facets, comm: MPI.Comm, node_rows: np.ndarray) -> _Master:
     imap = V.dofmap.index_map
     sub = [(0, 1, 2)] if facets.nodes.shape[1] == 3 else _P2_SUBTRIANGLES
     tri_local = (
@@ -430,6 +431,7 @@ def _gather_master(V, facets: _Facets, comm: MPI.Comm) -> _Master:
     X_owned = V.tabulate_dof_coordinates()[owned]
     parts_g = comm.allgather(g_owned)
     parts_X = comm.allgather(X_owned)
+    rows = np.concatenate(comm.allgather(node_rows[owned])).reshape(-1, 3).astype(np.int64)
     counts = [len(p) for p in parts_g]
     gdofs = np.concatenate(parts_g).astype(np.int64)
     X = np.concatenate(parts_X).reshape(-1, 3)
@@ -445,7 +447,7 @@ def _gather_master(V, facets: _Facets, comm: MPI.Comm) -> _Master:
     keys = edges[..., 0] * len(gdofs) + edges[..., 1]
     uniq, inv, cnt = np.unique(keys.ravel(), return_inverse=True, return_counts=True)
     boundary = (cnt[inv] == 1).reshape(-1, 3)
-    master = _Master(owned, index, gdofs, X, boundary, counts)
+    master = _Master(owned, index, gdofs, X, boundary, counts, rows)
     if facets.nodes.shape[1] == 6:  # P2: each flat triangle remembers its curved parent
         nf = len(facets.nodes)
         par_local = np.concatenate([facets.nodes] * len(sub)) if nf else np.zeros((0, 6), int)
@@ -558,8 +560,9 @@ class Contact:
     evaluation. ``mesh_integration = "points"`` uses the fixed rule with a closest-point search.
 
     Args:
-        V: Vector P1/P2 space on a tetrahedral mesh.
-        u: Displacement (m); read at every evaluation.
+        V: Vector P1/P2 space on a tetrahedral mesh, or the displacement block of a mixed
+            space (``W.sub(0)`` of a Taylor-Hood space); rows and columns are then those of W.
+        u: Displacement (m), or the mixed function on W; read at every evaluation.
         facet_tags: The mesh's facet tags.
         pairs: Contact pairs.
         bcs: Dirichlet conditions of the solve: their rows and columns get no contact terms.
@@ -579,15 +582,22 @@ class Contact:
         slave_integration: str = "subtriangles",
         mesh_integration: str = "segments",
     ):
-        self.V, self.u, self.pairs = V, u, list(pairs)
+        self.u, self.pairs = u, list(pairs)
         self.comm = V.mesh.comm
+        W = u.function_space
+        if V.component():  # the displacement block of a mixed space (e.g. Taylor-Hood)
+            V, umap = V.collapse()
+            self._umap = np.asarray(umap, dtype=np.int64)
+        else:
+            self._umap = np.arange(len(u.x.array), dtype=np.int64)
+        self.V = V
         names = [p.name for p in self.pairs]
         if len(set(names)) != len(names):
             raise ContactError(f"contact pair names must be unique: {names}")
         self.stats = ContactStats()
         self.degree = V.ufl_element().degree()
         if V.dofmap.index_map_bs != 3:
-            raise ContactError("contact needs a 3D vector displacement space")
+            raise ContactError("contact needs a 3D vector displacement space (or its block)")
         self.Q = dolfinx.fem.FunctionSpace(V.mesh, ("CG", 1))
         if quadrature_degree == 0:  # nodal (vertex) rule: contact points at the nodes
             points = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
@@ -613,10 +623,13 @@ class Contact:
         self._pieces = np.array([(0, 1, 2)] if self.degree == 1 else _P2_SUBTRIANGLES)
         # segments: linear x linear integrands for P1, quadratic x linear for P2
         self._seg_rule = _segment_rule(2 if self.degree == 1 else 4)
-        imap = V.dofmap.index_map
-        self._l2g = imap.local_to_global(
-            np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
+        # global row of each displacement component of each node of V, in u's own space
+        wmap, wbs = W.dofmap.index_map, W.dofmap.index_map_bs
+        self._w_l2g = wmap.local_to_global(
+            np.arange(wmap.size_local + wmap.num_ghosts, dtype=np.int32)
         )
+        self._wbs = wbs
+        self._node_rows = (self._w_l2g[self._umap // wbs] * wbs + self._umap % wbs).reshape(-1, 3)
         self._bc_global = self._bc_rows(bcs)
         self._slaves, self._masters, self._fixed, self._lam = [], [], [], []
         self._state = [None] * len(self.pairs)
@@ -637,7 +650,7 @@ class Contact:
                 mf = _surface_facets(
                     V, facet_tags, pair.master.tags, self.Q, f"contact pair {pair.name!r}, master"
                 )
-                self._masters.append(_gather_master(V, mf, self.comm))
+                self._masters.append(_gather_master(V, mf, self.comm, self._node_rows))
             else:
                 self._masters.append(None)
         self._merged = np.zeros(0, dtype=np.int64)
@@ -651,8 +664,8 @@ class Contact:
         for bc in bcs:
             idx, _ = bc.dof_indices()
             idx = np.asarray(idx, dtype=np.int64)
-            blocks = self._l2g[idx // 3] if len(idx) else np.zeros(0, dtype=np.int64)
-            rows.append(3 * blocks + idx % 3)
+            bs = self._wbs
+            rows.append(self._w_l2g[idx // bs] * bs + idx % bs if len(idx) else idx)
         local = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
         return np.unique(np.concatenate(self.comm.allgather(local)))
 
@@ -668,7 +681,7 @@ class Contact:
         )
 
     def _current(self) -> np.ndarray:
-        return self.V.tabulate_dof_coordinates() + self.u.x.array.reshape(-1, 3)
+        return self.V.tabulate_dof_coordinates() + self.u.x.array[self._umap].reshape(-1, 3)
 
     def _update_masters(self, x_nodes: np.ndarray) -> None:
         for m in self._masters:
@@ -899,16 +912,16 @@ class Contact:
 
     # -- node coefficients of the active points ---------------------------------------------
     def _couplings(self, i: int):
-        """Active points, their global block indices (nqa, k) and coefficients c (nqa, k)."""
+        """Active points, the global rows of their nodes (nqa, k, 3) and coefficients (nqa, k)."""
         st, sl = self._state[i], self._slaves[i]
         act = np.flatnonzero(st["active"])
-        blocks = self._l2g[sl.nodes[st["facet"][act]]]
+        rows = self._node_rows[sl.nodes[st["facet"][act]]]
         coef = st["N"][act]
         if st["m_idx"] is not None:
             m = self._masters[i]
-            blocks = np.hstack([blocks, m.gdofs[st["m_idx"][act]]])
+            rows = np.concatenate([rows, m.rows[st["m_idx"][act]]], axis=1)
             coef = np.hstack([coef, -st["bary"][act]])
-        return act, blocks, coef
+        return act, rows, coef
 
     def add_residual(self, b: PETSc.Vec) -> None:
         """Add the contact forces to a residual vector (F_int - F_ext convention; collective)."""
@@ -917,10 +930,10 @@ class Contact:
         rows, vals = [], []
         for i in range(len(self.pairs)):
             st = self._state[i]
-            act, blocks, coef = self._couplings(i)
+            act, node_rows, coef = self._couplings(i)
             force = (st["p"][act, None] * st["n"][act] + st["t"][act]) * st["W"][act, None]
             r = -coef[:, :, None] * force[:, None, :]  # (nqa, k, 3)
-            rows.append((3 * blocks[:, :, None] + np.arange(3)).ravel())
+            rows.append(node_rows.ravel())
             vals.append(r.ravel())
         rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
         vals = np.concatenate(vals) if vals else np.zeros(0)
@@ -935,7 +948,7 @@ class Contact:
         eye = np.eye(3)
         for i, pair in enumerate(self.pairs):
             st = self._state[i]
-            act, blocks, coef = self._couplings(i)
+            act, node_rows, coef = self._couplings(i)
             if len(act) == 0:
                 continue
             n, p, W = st["n"][act], st["p"][act], st["W"][act]
@@ -960,17 +973,19 @@ class Contact:
             blk = blk * W[:, None, None, None, None]
             # points that couple the same nodes (one slave facet, one master facet) share
             # their block: sum them before expanding to triplets
-            groups, inv = np.unique(blocks, axis=0, return_inverse=True)
+            _, first, inv = np.unique(
+                node_rows[:, :, 0], axis=0, return_index=True, return_inverse=True
+            )
             inv = inv.ravel()
             order = np.argsort(inv, kind="stable")
             starts = np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]
             k = coef.shape[1]
             blk = np.add.reduceat(blk[order].reshape(len(act), -1), starts, axis=0)
-            blk = blk.reshape(len(groups), k, 3, k, 3)
-            r = 3 * groups[:, :, None] + np.arange(3)  # (ng, k, 3)
+            blk = blk.reshape(len(first), k, 3, k, 3)
+            r = node_rows[first]  # (ng, k, 3)
             bc = np.isin(r, self._bc_global)
             keep = ~(bc[:, :, :, None, None] | bc[:, None, None, :, :])
-            shape = (len(groups), k, 3, k, 3)
+            shape = (len(first), k, 3, k, 3)
             rows.append(np.broadcast_to(r[:, :, :, None, None], shape)[keep])
             cols.append(np.broadcast_to(r[:, None, None, :, :], shape)[keep])
             vals.append(blk[keep])

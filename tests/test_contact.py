@@ -605,3 +605,46 @@ def test_rigid_plate_presses_column_through_contact():
     np.testing.assert_allclose(bal.force_sum, 0.0, atol=1e-6 * force)
     np.testing.assert_allclose(bal.moment_sum, 0.0, atol=1e-6 * force * a)
     assert its <= 6
+
+
+@pytest.mark.mpi
+def test_taylor_hood_column_contact_exact():
+    """Contact on the displacement block of a mixed Taylor–Hood (P2/P1) space, nearly
+    incompressible (ν = 0.499): a column pressed on a rigid plane, uniaxial stress, p = E δ/(H +
+    E/ε) exactly (the mixed form reproduces the linear fields), with the pressure unknown."""
+    mesh, ft, _ = _column((2, 2, 3), (1.0, 1.0, 2.0), 1)
+    cell = mesh.ufl_cell()
+    el = ufl.MixedElement([ufl.VectorElement("CG", cell, 2), ufl.FiniteElement("CG", cell, 1)])
+    W = dolfinx.fem.FunctionSpace(mesh, el)
+    w = dolfinx.fem.Function(W)
+    u, p = ufl.split(w)
+    v, q = ufl.TestFunctions(W)
+    nu = 0.499
+    mu, lam = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+    eps_u, eps_v = ufl.sym(ufl.grad(u)), ufl.sym(ufl.grad(v))
+    F = (2 * mu * ufl.inner(eps_u, eps_v) - p * ufl.div(v) + (ufl.div(u) + p / lam) * q) * ufl.dx
+    fdim = 2
+    bcs = []
+    for tag, comp, value in ((XMIN, 0, 0.0), (YMIN, 1, 0.0), (TOP, 2, -1e-3)):
+        Wc = W.sub(0).sub(comp)
+        dofs = dolfinx.fem.locate_dofs_topological(Wc, fdim, ft.find(tag))
+        bcs.append(dolfinx.fem.dirichletbc(PETSc.ScalarType(value), dofs, Wc))
+    H, eps = 2.0, 100 * E / 2.0
+    contact = Contact(
+        W.sub(0),
+        w,
+        ft,
+        [ContactPair("base", (BOTTOM,), Plane((0, 0, 0), (0, 0, 1)), eps)],
+        bcs=bcs,
+        quadrature_degree=2,
+        slave_integration="element",  # P2's own functions: consistent loads
+    )
+    solver = NonlinearSolver(F, w, bcs, name="th", options={"snes_atol": 1e-8}, contact=contact)
+    solver.solve()
+    r = contact.resultants()["base"]
+    p_exact = E * 1e-3 / (H + E / eps)
+    assert r["max_pressure"] == pytest.approx(p_exact, rel=1e-7)
+    assert r["force"][2] == pytest.approx(p_exact, rel=1e-7)
+    # the pressure unknown p = -λ div u = λ (1 - 2ν) P / E = ν P / (1 + ν) in uniaxial stress P
+    p_h = w.sub(1).collapse().x.array
+    assert np.allclose(p_h, nu / (1 + nu) * p_exact, rtol=1e-6)

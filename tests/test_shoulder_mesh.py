@@ -375,3 +375,20 @@ def test_prosthetic_head_is_its_sphere_and_the_shaft_moves(geometry):
     np.testing.assert_allclose(
         distal_centre(sm) - distal_centre(base), 2.0 * MM * anterior, atol=0.3 * MM
     )
+
+
+@pytest.mark.parametrize("level", ["medium", "paper"])
+def test_every_group_present_at_finer_levels(geometry, level):
+    """Every volume and surface group is non-empty at medium and paper too (the fine level,
+    662k DOF, was checked with `shoulder-fem mesh` and is too slow for CI); no inverted cell."""
+    sizes = load_scene("shoulder-internal-rotation").level(level)
+    sm = S.build_shoulder_mesh(MPI.COMM_WORLD, geometry, sizes, "deformable")
+    for m in S.VOLUMES:
+        assert np.sum(sm.cell_tags.values == m.id) > 0, (level, m.name)
+    for m in S.SURFACES:
+        assert np.sum(sm.facet_tags.values == m.id) > 0, (level, m.name)
+    x = sm.mesh.geometry.x
+    cells = sm.mesh.geometry.dofmap.array.reshape(-1, 4)
+    e = x[cells[:, 1:]] - x[cells[:, :1]]
+    assert np.all(np.linalg.det(e) != 0.0)
+    assert len(np.unique(np.sign(np.linalg.det(e)))) == 1  # one orientation: none inverted

@@ -29,6 +29,7 @@ bench: setup
 	$(PY) benchmarks/spinning_bar.py --out benchmarks/results
 	$(PY) benchmarks/stability_map.py --out benchmarks/results
 	$(PY) benchmarks/speed_accuracy.py --out benchmarks/results
+	$(PY) benchmarks/contact.py --out benchmarks/results
 
 clean:
 	rm -rf results .pytest_cache

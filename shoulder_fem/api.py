@@ -108,6 +108,19 @@ def check_method(method: str) -> str:
     return method
 
 
+def check_scene_methods(scene: Scene, methods: tuple[str, ...] = METHODS) -> None:
+    """Raise :class:`SceneError` unless ``scene``'s family runs every one of ``methods``."""
+    families = _families()
+    if scene.family not in families:
+        raise SceneError(f"{scene.source}: unknown scene family '{scene.family}'")
+    missing = [m for m in methods if m not in families[scene.family].methods]
+    if missing:
+        raise SceneError(
+            f"{scene.source}: scene '{scene.name}' has no {' or '.join(missing)} method "
+            f"(it has: {', '.join(families[scene.family].methods)})"
+        )
+
+
 def run(
     scene: Scene | str,
     method: str,
@@ -140,11 +153,7 @@ def run(
     if scene.family not in families:
         raise SceneError(f"{scene.source}: unknown scene family '{scene.family}'")
     family = families[scene.family]
-    if method not in family.methods:
-        raise SceneError(
-            f"{scene.source}: scene '{scene.name}' has no {method} method "
-            f"(it has: {', '.join(family.methods)})"
-        )
+    check_scene_methods(scene, (method,))
     level = level or scene.default_level
     scene.level(level)  # unknown level → SceneError now
     out = Path(out)

@@ -269,12 +269,13 @@ def cmd_bench(args) -> int:
     """Run both methods, then write report.json, report.md and figures."""
     from mpi4py import MPI
 
-    from .api import RunFailed, run
+    from .api import RunFailed, check_scene_methods, run
     from .compare import resources_table
     from .results import OutputDir, atomic_write_json
 
     comm = MPI.COMM_WORLD
     scene, options = _prepare(args)
+    check_scene_methods(scene)  # both methods, before anything runs
     with OutputDir(args.out, comm) as out:
         runs = {}
         for method in ("coupled", "decoupled"):

@@ -40,6 +40,21 @@ def _leftovers(folder: Path) -> list[str]:
             ["run", "spinning-bar", "--method", "coupled", "--set", "outer_radius=10mm"],
             "with override(s) outer_radius: outer_radius = 0.01 m must exceed",
         ),
+        (["bench", "hertz"], "scene 'hertz' has no decoupled method (it has: coupled)"),
+        (["run", "hertz", "--method", "decoupled"], "scene 'hertz' has no decoupled method"),
+        (
+            [
+                "run",
+                "hertz",
+                "--method",
+                "coupled",
+                "--set",
+                "geometry=socket",
+                "--set",
+                "socket_radius=20mm",
+            ],
+            "socket_radius = 0.02 m must exceed radius = 0.024 m",
+        ),
     ],
 )
 def test_bad_input_one_line_error_nothing_written(comm_tmp, capsys, args, expected):

@@ -10,8 +10,8 @@ point q of the slave facets, in the current configuration x = X + u:
 * the closest point x_m on the master, its outward normal n (out of the master's solid, towards
   the slave) and the signed gap g = (x_q - x_m) . n (negative = penetration);
 * the normal pressure p = eps <-g> (penalty) or p = <lambda - eps g> (augmented Lagrangian,
-  lambda updated by Uzawa iterations around the Newton solve: lambda <- p until the largest
-  penetration is below ``gap_tolerance``);
+  lambda, a linear field per slave facet, updated by Uzawa iterations around the Newton solve:
+  lambda <- p until every point carrying pressure has |g| <= ``gap_tolerance``);
 * with friction coefficient mu > 0, the tangential traction of a regularised Coulomb law,
   t = -mu p s / sqrt(|s|^2 + e_s^2), s = (I - n n)(dx_q - dx_m) the relative slip over the load
   step and e_s the regularisation slip (``slip_regularization``, m);
@@ -19,9 +19,9 @@ point q of the slave facets, in the current configuration x = X + u:
   the slave facet's shape functions and the master's barycentric weights.
 
 Pressures are nominal (per unit reference area of the slave). The master mesh surface is
-represented by flat triangles: each P1 facet, or the 4 sub-triangles through the vertex and
-mid-edge nodes of a P2 facet; so the master's virtual velocity is linear on each sub-triangle.
-The pairing is searched again at every residual evaluation (a k-d tree on the master triangle
+searched as flat triangles: each P1 facet, or the 4 sub-triangles through the vertex and
+mid-edge nodes of a P2 facet (with segments, the loads are then spread with the P2 facet's own
+functions). The pairing is searched again at every residual evaluation (a k-d tree on the master triangle
 centroids), which is what large sliding needs. Against a mesh master the contact points are, by
 default, those of the *segments*: each slave facet (or P2 sub-triangle) cut along the edges of
 the master triangles it overlaps, projected on its plane, with a degree-2 rule on each piece.
@@ -45,7 +45,8 @@ MPI: slave facets are handled by the rank owning their cell; the master surfaces
 are gathered on every rank (their node positions re-gathered at each evaluation). Rows touched
 on other ranks go through PETSc's stash (vectors) or an explicit all-to-all (matrices).
 
-Simplices only (triangular facets of tetrahedra), P1 or P2 displacement.
+Simplices only (triangular facets of tetrahedra), P1 or P2 displacement, alone or as the
+displacement block of a mixed (Taylor-Hood) space.
 """
 
 from __future__ import annotations

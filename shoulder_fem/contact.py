@@ -22,9 +22,10 @@ Pressures are nominal (per unit reference area of the slave). The master mesh su
 searched as flat triangles: each P1 facet, or the 4 sub-triangles through the vertex and
 mid-edge nodes of a P2 facet (with segments, the loads are then spread with the P2 facet's own
 functions). The pairing is searched again at every residual evaluation (a k-d tree on the
-master triangle centroids), which is what large sliding needs. Against a mesh master the contact points are, by
-default, those of the *segments*: each slave facet (or P2 sub-triangle) cut along the edges of
-the master triangles it overlaps, projected on its plane, with a degree-2 rule on each piece.
+master triangle centroids), which is what large sliding needs. Against a mesh master the
+contact points are, by default, those of the *segments*: each slave facet (or P2 sub-triangle)
+cut along the edges of the master triangles it overlaps, projected on its plane, with a rule of
+degree 2 (P1) or 4 (P2) on each piece.
 The integral is then exact piece by piece, both sides receive consistent loads, and two
 non-matching meshes transmit a uniform pressure exactly (patch test). The alternative
 (``mesh_integration="points"``) is a fixed rule with a closest-point projection.

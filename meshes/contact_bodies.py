@@ -1,11 +1,14 @@
 """Tetrahedral meshes of the bodies of the contact verifications (gmsh OpenCASCADE).
 
-Two builders:
+Three builders:
 
 * :func:`build_hemisphere`: the lower half of a ball of radius R centred at (0, 0, R), whose pole
   touches the plane z = 0 at the origin (Hertz sphere on a rigid flat; ball in a rigid concave
   socket), optionally cut to the quarter x >= 0, y >= 0 with its two symmetry planes, refined
   around the pole.
+* :func:`build_ball_on_block`: the same (quarter) half ball resting on a separate block below
+  z = 0, the two meshed independently (no shared node) with one size field refined around the
+  pole (Hertz sphere on a deformable flat).
 * :func:`build_two_blocks`: two boxes stacked along z, meshed independently (no shared node even
   when they touch) with different sizes, so that their interface meshes do not match (contact
   patch test, block dragged over a flat, contact benchmark).
@@ -42,6 +45,34 @@ TOP = Marker("top", 2, 2)  # flat face z = R
 SYM_X = Marker("sym_x", 3, 2)  # symmetry plane x = 0 (quarter only)
 SYM_Y = Marker("sym_y", 4, 2)  # symmetry plane y = 0 (quarter only)
 HEMISPHERE_MARKERS: dict[str, Marker] = {m.name: m for m in (BALL, CONTACT, TOP, SYM_X, SYM_Y)}
+
+# --- ball on block (the hemisphere's markers, and the block's) ----------------------------------
+BLOCK = Marker("block", 2, 3)
+BLOCK_TOP = Marker("block_top", 11, 2)  # z = 0, the face the ball rests on
+BLOCK_BOTTOM = Marker("block_bottom", 12, 2)  # z = -depth
+BLOCK_SYM_X = Marker("block_sym_x", 13, 2)  # x = 0 (symmetry plane with quarter)
+BLOCK_SYM_Y = Marker("block_sym_y", 14, 2)  # y = 0 (symmetry plane with quarter)
+BLOCK_XMAX = Marker("block_xmax", 15, 2)  # x = w (far lateral face)
+BLOCK_YMAX = Marker("block_ymax", 16, 2)  # y = w (far lateral face)
+BLOCK_XMIN = Marker("block_xmin", 17, 2)  # x = -w (full model only)
+BLOCK_YMIN = Marker("block_ymin", 18, 2)  # y = -w (full model only)
+BALL_ON_BLOCK_MARKERS: dict[str, Marker] = {
+    **HEMISPHERE_MARKERS,
+    **{
+        m.name: m
+        for m in (
+            BLOCK,
+            BLOCK_TOP,
+            BLOCK_BOTTOM,
+            BLOCK_SYM_X,
+            BLOCK_SYM_Y,
+            BLOCK_XMAX,
+            BLOCK_YMAX,
+            BLOCK_XMIN,
+            BLOCK_YMIN,
+        )
+    },
+}
 
 # --- two blocks -----------------------------------------------------------------------------
 LOWER = Marker("lower", 1, 3)
@@ -131,69 +162,8 @@ def build_hemisphere(
     scale = float(radius)
 
     def build(gmsh) -> None:
-        occ = gmsh.model.occ
-        r = 1.0  # model units: lengths / radius
-        ball = occ.addSphere(0.0, 0.0, r, r)
-        if quarter:
-            # the sphere's parametric pole is the contact pole, a vertex of the quarter's face
-            box = occ.addBox(0.0, 0.0, 0.0, 2 * r, 2 * r, r)
-        else:
-            # turn the sphere about its centre so that its parametric poles (singular points of
-            # the surface mesher) and its seam lie far from the contact pole: the lower one at
-            # (sin 60°, 0, -cos 60°) R from the centre, at distance R from the contact pole
-            occ.rotate([(3, ball)], 0.0, 0.0, r, 0.0, 1.0, 0.0, -math.pi / 3)
-            box = occ.addBox(-2 * r, -2 * r, 0.0, 4 * r, 4 * r, r)
-        volumes, _ = occ.intersect([(3, ball)], [(3, box)])
-        occ.synchronize()
-        if len(volumes) != 1:
-            raise RuntimeError(f"expected one volume after the intersection, got {volumes}")
-        tol = 1e-6
-        groups: dict[int, list[int]] = {m.id: [] for m in (CONTACT, TOP, SYM_X, SYM_Y)}
-        for _, face in gmsh.model.getEntities(2):
-            kind = gmsh.model.getType(2, face)
-            cx, cy, cz = occ.getCenterOfMass(2, face)
-            if kind == "Sphere":
-                groups[CONTACT.id].append(face)
-            elif kind == "Plane" and abs(cz - r) < tol:
-                groups[TOP.id].append(face)
-            elif kind == "Plane" and abs(cx) < tol:
-                groups[SYM_X.id].append(face)
-            elif kind == "Plane" and abs(cy) < tol:
-                groups[SYM_Y.id].append(face)
-            else:
-                raise RuntimeError(f"unexpected {kind} face {face}, centre {(cx, cy, cz)}")
-        expected = {CONTACT.id: 1, TOP.id: 1, SYM_X.id: int(quarter), SYM_Y.id: int(quarter)}
-        found = {k: len(v) for k, v in groups.items()}
-        if found != expected:
-            raise RuntimeError(f"faces per marker {found}, expected {expected}")
-        _physical(gmsh, 3, [volumes[0][1]], BALL)
-        for marker in (CONTACT, TOP, SYM_X, SYM_Y):
-            if groups[marker.id]:
-                _physical(gmsh, 2, groups[marker.id], marker)
-        field = gmsh.model.mesh.field
-        distance = field.add("MathEval")  # exact distance to the pole, model units
-        field.setString(distance, "F", "Sqrt(x*x + y*y + z*z)")
-        d_min = refine_radius / scale
-        d_max = (refine_radius + (h_far - h_contact) / grading) / scale
-
-        def threshold(factor: float) -> int:
-            tag = field.add("Threshold")
-            field.setNumber(tag, "InField", distance)
-            field.setNumber(tag, "SizeMin", factor * h_contact / scale)
-            field.setNumber(tag, "SizeMax", factor * h_far / scale)
-            field.setNumber(tag, "DistMin", d_min)
-            field.setNumber(tag, "DistMax", max(d_max, d_min * (1 + 1e-9) + 1e-12))
-            return tag
-
-        # gmsh's 3D Delaunay makes interior edges ~1.3 times the requested size; asking the
-        # volume for VOLUME_SIZE_FACTOR times the size (curves and surfaces get the size itself)
-        # brings the median interior edge back to about the requested size.
-        in_volume = field.add("Restrict")
-        field.setNumber(in_volume, "InField", threshold(VOLUME_SIZE_FACTOR))
-        field.setNumbers(in_volume, "RegionsList", [volumes[0][1]])
-        both = field.add("Min")
-        field.setNumbers(both, "FieldsList", [threshold(1.0), in_volume])
-        field.setAsBackgroundMesh(both)
+        volume = _half_ball(gmsh, quarter)
+        _pole_size_field(gmsh, [volume], scale, h_contact, h_far, refine_radius, grading)
         _mesh_options(gmsh, h_max=h_far / scale)
         gmsh.model.mesh.generate(3)
 
@@ -201,6 +171,200 @@ def build_hemisphere(
     if quarter:
         planes += [(0, 0.0), (1, 0.0)]
     return _gmsh_to_dolfinx(comm, "contact_bodies_hemisphere", build, scale, planes)
+
+
+def build_ball_on_block(
+    comm: MPI.Comm,
+    radius: float,
+    block_half_width: float,
+    block_depth: float,
+    h_contact: float,
+    h_far: float,
+    refine_radius: float,
+    quarter: bool = True,
+    *,
+    grading: float = DEFAULT_GRADING,
+) -> tuple[dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags, dolfinx.mesh.MeshTags]:
+    """The half ball of :func:`build_hemisphere` resting on a block, meshed independently.
+
+    The ball is that of :func:`build_hemisphere` (its pole touches z = 0 at the origin); the
+    block is [0, w] x [0, w] x [-depth, 0] with ``quarter`` ([-w, w] x [-w, w] x [-depth, 0]
+    without), w = ``block_half_width``. The two are separate OpenCASCADE volumes (not
+    fragmented): they share no node (the ball's pole and the block's corner or top face are
+    distinct nodes at the same place) and their meshes of the contact region do not match. One
+    size field, that of :func:`build_hemisphere` (the distance to the pole), sizes both bodies:
+    ``h_contact`` within ``refine_radius`` of the origin, growing at ``grading`` up to
+    ``h_far``.
+
+    Args:
+        comm: Communicator the mesh is distributed on.
+        radius: Radius R of the ball (m).
+        block_half_width: Half-width w of the block (m): its extent in x and y from the axis.
+        block_depth: Depth of the block below z = 0 (m).
+        h_contact: Mesh size near the pole (m).
+        h_far: Mesh size far from the pole (m), >= ``h_contact``.
+        refine_radius: Radius of the region around the pole meshed at ``h_contact`` (m).
+        quarter: Keep only the quarter x >= 0, y >= 0 of both bodies.
+        grading: Growth rate of the size away from the refined region (dimensionless, > 0).
+
+    Returns:
+        ``(mesh, cell_tags, facet_tags)``: cells :data:`BALL` and :data:`BLOCK`; the ball's
+        facets as in :func:`build_hemisphere` (:data:`CONTACT`, :data:`TOP`, :data:`SYM_X`,
+        :data:`SYM_Y`); the block's :data:`BLOCK_TOP` (z = 0), :data:`BLOCK_BOTTOM`
+        (z = -depth), :data:`BLOCK_XMAX` (x = w), :data:`BLOCK_YMAX` (y = w), and with
+        ``quarter`` :data:`BLOCK_SYM_X` (x = 0) and :data:`BLOCK_SYM_Y` (y = 0), without
+        :data:`BLOCK_XMIN` (x = -w) and :data:`BLOCK_YMIN` (y = -w).
+
+    Raises:
+        ValueError: on every rank, for invalid parameters or a gmsh failure.
+    """
+    if not (
+        radius > 0
+        and block_half_width > 0
+        and block_depth > 0
+        and 0 < h_contact <= h_far
+        and refine_radius >= 0
+        and grading > 0
+    ):
+        raise ValueError(
+            f"ball on block: radius = {radius} m, block_half_width = {block_half_width} m, "
+            f"block_depth = {block_depth} m, h_contact = {h_contact} m, h_far = {h_far} m, "
+            f"refine_radius = {refine_radius} m, grading = {grading} invalid (need radius, "
+            "block_half_width, block_depth > 0, 0 < h_contact <= h_far, refine_radius >= 0, "
+            "grading > 0)"
+        )
+    w, depth = float(block_half_width), float(block_depth)
+    scale = float(radius)  # model units: lengths / radius (the ball's geometry is unchanged)
+    x0 = 0.0 if quarter else -w
+    # per axis: the marker of the face at the low and at the high end of the block
+    sides = (
+        (BLOCK_SYM_X if quarter else BLOCK_XMIN, BLOCK_XMAX),
+        (BLOCK_SYM_Y if quarter else BLOCK_YMIN, BLOCK_YMAX),
+        (BLOCK_BOTTOM, BLOCK_TOP),
+    )
+
+    def build(gmsh) -> None:
+        ball = _half_ball(gmsh, quarter)
+        lo = np.array([x0, x0, -depth]) / scale
+        hi = np.array([w, w, 0.0]) / scale
+        block = gmsh.model.occ.addBox(*lo, *(hi - lo))
+        gmsh.model.occ.synchronize()  # no fragment: the two volumes stay independent
+        _physical(gmsh, 3, [block], BLOCK)
+        _, surfaces = gmsh.model.getAdjacencies(3, block)
+        tol = 1e-6 * min(w, depth) / scale
+        groups: dict[Marker, list[int]] = {}
+        for face in surfaces:
+            box = np.asarray(gmsh.model.getBoundingBox(2, face))  # enlarged by OCC
+            axis = int(np.argmin(box[3:] - box[:3]))  # the face's normal
+            centre = gmsh.model.occ.getCenterOfMass(2, face)[axis]
+            side = int(abs(centre - hi[axis]) < tol)
+            if abs(centre - (hi if side else lo)[axis]) > tol:
+                raise RuntimeError(f"face {face} of the block is on no box plane")
+            groups.setdefault(sides[axis][side], []).append(int(face))
+        if sorted(len(v) for v in groups.values()) != [1] * 6:
+            raise RuntimeError(f"block faces per marker {groups}, expected one each")
+        for marker in (m for pair in sides for m in pair):
+            _physical(gmsh, 2, groups[marker], marker)
+        _pole_size_field(gmsh, [ball, block], scale, h_contact, h_far, refine_radius, grading)
+        _mesh_options(gmsh, h_max=h_far / scale)
+        gmsh.model.mesh.generate(3)
+
+    # with quarter, x0 = 0: the block's and the ball's symmetry planes
+    planes = [(2, radius), (0, x0), (0, w), (1, x0), (1, w), (2, -depth), (2, 0.0)]
+    return _gmsh_to_dolfinx(comm, "contact_bodies_ball_on_block", build, scale, planes)
+
+
+def _half_ball(gmsh, quarter: bool) -> int:
+    """Make the (quarter) lower half ball of radius 1 in the current model; return its volume.
+
+    With its physical groups :data:`BALL`, :data:`CONTACT`, :data:`TOP`, :data:`SYM_X`,
+    :data:`SYM_Y`.
+    """
+    occ = gmsh.model.occ
+    r = 1.0  # model units: lengths / radius
+    ball = occ.addSphere(0.0, 0.0, r, r)
+    if quarter:
+        # the sphere's parametric pole is the contact pole, a vertex of the quarter's face
+        box = occ.addBox(0.0, 0.0, 0.0, 2 * r, 2 * r, r)
+    else:
+        # turn the sphere about its centre so that its parametric poles (singular points of
+        # the surface mesher) and its seam lie far from the contact pole: the lower one at
+        # (sin 60°, 0, -cos 60°) R from the centre, at distance R from the contact pole
+        occ.rotate([(3, ball)], 0.0, 0.0, r, 0.0, 1.0, 0.0, -math.pi / 3)
+        box = occ.addBox(-2 * r, -2 * r, 0.0, 4 * r, 4 * r, r)
+    volumes, _ = occ.intersect([(3, ball)], [(3, box)])
+    occ.synchronize()
+    if len(volumes) != 1:
+        raise RuntimeError(f"expected one volume after the intersection, got {volumes}")
+    volume = volumes[0][1]
+    own = set(gmsh.model.getAdjacencies(3, volume)[1].tolist())
+    tol = 1e-6
+    groups: dict[int, list[int]] = {m.id: [] for m in (CONTACT, TOP, SYM_X, SYM_Y)}
+    for _, face in gmsh.model.getEntities(2):
+        if face not in own:
+            continue
+        kind = gmsh.model.getType(2, face)
+        cx, cy, cz = occ.getCenterOfMass(2, face)
+        if kind == "Sphere":
+            groups[CONTACT.id].append(face)
+        elif kind == "Plane" and abs(cz - r) < tol:
+            groups[TOP.id].append(face)
+        elif kind == "Plane" and abs(cx) < tol:
+            groups[SYM_X.id].append(face)
+        elif kind == "Plane" and abs(cy) < tol:
+            groups[SYM_Y.id].append(face)
+        else:
+            raise RuntimeError(f"unexpected {kind} face {face}, centre {(cx, cy, cz)}")
+    expected = {CONTACT.id: 1, TOP.id: 1, SYM_X.id: int(quarter), SYM_Y.id: int(quarter)}
+    found = {k: len(v) for k, v in groups.items()}
+    if found != expected:
+        raise RuntimeError(f"faces per marker {found}, expected {expected}")
+    _physical(gmsh, 3, [volume], BALL)
+    for marker in (CONTACT, TOP, SYM_X, SYM_Y):
+        if groups[marker.id]:
+            _physical(gmsh, 2, groups[marker.id], marker)
+    return volume
+
+
+def _pole_size_field(
+    gmsh,
+    volumes: list[int],
+    scale: float,
+    h_contact: float,
+    h_far: float,
+    refine_radius: float,
+    grading: float,
+) -> None:
+    """Set the background size field refined around the origin (the pole).
+
+    ``h_contact`` within ``refine_radius`` of the origin, growing linearly with the distance at
+    ``grading`` up to ``h_far`` (lengths in m, ``scale`` m per model unit); VOLUME_SIZE_FACTOR
+    times that inside ``volumes``.
+    """
+    field = gmsh.model.mesh.field
+    distance = field.add("MathEval")  # exact distance to the pole, model units
+    field.setString(distance, "F", "Sqrt(x*x + y*y + z*z)")
+    d_min = refine_radius / scale
+    d_max = (refine_radius + (h_far - h_contact) / grading) / scale
+
+    def threshold(factor: float) -> int:
+        tag = field.add("Threshold")
+        field.setNumber(tag, "InField", distance)
+        field.setNumber(tag, "SizeMin", factor * h_contact / scale)
+        field.setNumber(tag, "SizeMax", factor * h_far / scale)
+        field.setNumber(tag, "DistMin", d_min)
+        field.setNumber(tag, "DistMax", max(d_max, d_min * (1 + 1e-9) + 1e-12))
+        return tag
+
+    # gmsh's 3D Delaunay makes interior edges ~1.3 times the requested size; asking the
+    # volume for VOLUME_SIZE_FACTOR times the size (curves and surfaces get the size itself)
+    # brings the median interior edge back to about the requested size.
+    in_volume = field.add("Restrict")
+    field.setNumber(in_volume, "InField", threshold(VOLUME_SIZE_FACTOR))
+    field.setNumbers(in_volume, "RegionsList", list(volumes))
+    both = field.add("Min")
+    field.setNumbers(both, "FieldsList", [threshold(1.0), in_volume])
+    field.setAsBackgroundMesh(both)
 
 
 def build_two_blocks(
@@ -443,6 +607,16 @@ def _gmsh_to_dolfinx(
 
 __all__ = [
     "BALL",
+    "BALL_ON_BLOCK_MARKERS",
+    "BLOCK",
+    "BLOCK_BOTTOM",
+    "BLOCK_SYM_X",
+    "BLOCK_SYM_Y",
+    "BLOCK_TOP",
+    "BLOCK_XMAX",
+    "BLOCK_XMIN",
+    "BLOCK_YMAX",
+    "BLOCK_YMIN",
     "CONTACT",
     "DEFAULT_GRADING",
     "HEMISPHERE_MARKERS",
@@ -464,6 +638,7 @@ __all__ = [
     "UPPER_XMIN",
     "UPPER_YMAX",
     "UPPER_YMIN",
+    "build_ball_on_block",
     "build_hemisphere",
     "build_two_blocks",
 ]

@@ -1,15 +1,25 @@
-"""The ``hertz`` scene family: an elastic ball on a rigid flat or in a rigid conforming socket.
+"""The ``hertz`` scene family: an elastic ball on a rigid or deformable flat, or in a rigid socket.
 
 The verification scene of the contact code (:mod:`shoulder_fem.contact`) against Hertz theory.
 The ball (radius R, Young's modulus E, Poisson's ratio ν, small strain: Hertz is a linear
 theory) is modelled by its lower half, a quarter of it with the symmetry planes x = 0 and
-y = 0; its pole touches the counterpart at the origin. The counterpart is rigid: the plane
-z = 0, or a spherical socket of radius Rs > R centred at (0, 0, Rs). The ball's flat top face is
-driven down by an approach δ, adjusted by secant iterations until the contact force is the
-scene's force F (to ``force_tolerance``); F is reached in ``load_steps`` equal increments.
+y = 0; its pole touches the counterpart at the origin. The counterpart is the rigid plane
+z = 0 (``flat``), a rigid spherical socket of radius Rs > R centred at (0, 0, Rs) (``socket``),
+or an elastic block (E₂, ν₂) below z = 0 (``deformable_flat``, mesh-to-mesh contact): the
+quarter [0, w] x [0, w] x [−d, 0] meshed independently of the ball (no shared node), its
+bottom fixed in z, its faces x = 0 and y = 0 symmetry planes, w and d multiples of the Hertz
+contact radius a (20 a by default: the half-space is truncated, and its fixed bottom stiffens
+it; measured at the coarse level, 12 a gives p0 +1.8 % and a +0.6 %, 20 a +0.4 % and −0.1 %, for
+500 more DOFs). The slave is the ball's spherical surface, the master the block's top face
+(segment integration), with its own penalty factor (``mesh_penalty_factor``, see the scene
+file: a stiff penalty turns the misfit of the two faceted surfaces at the segments' points
+into pressure oscillations). The ball's flat top face is driven down by an approach δ, adjusted by
+secant iterations until the contact force is the scene's force F (to ``force_tolerance``); F
+is reached in ``load_steps`` equal increments.
 
-Hertz (rigid counterpart): E* = E/(1 − ν²); R* = R on the flat, R Rs/(Rs − R) in the socket
-(the conforming estimate); a = (3 F R*/(4 E*))^(1/3); p0 = 3 F/(2 π a²).
+Hertz: 1/E* = (1 − ν²)/E + (1 − ν₂²)/E₂ (E* = E/(1 − ν²) against a rigid counterpart);
+R* = R on the flats, R Rs/(Rs − R) in the socket (the conforming estimate);
+a = (3 F R*/(4 E*))^(1/3); p0 = 3 F/(2 π a²).
 
 Measured: the largest quadrature-point pressure, the contact radius from the contact area
 (a = √(4 A/π) for the quarter model), the contact force (and, independently, the reaction on the
@@ -36,7 +46,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .contact import Contact, ContactPair, Plane, Sphere
+from .contact import Contact, ContactPair, MeshSurface, Plane, Sphere
 from .forms import materials
 from .forms import virtual_power as vp
 from .scene import Scene, SceneError
@@ -50,11 +60,17 @@ SYMMETRY_FACTOR = 4.0
 MAX_FORCE_ITERATIONS = 20
 #: Uzawa iterations allowed per solve (augmented Lagrangian).
 MAX_UZAWA = 30
+#: Deformable flat, first solve from the unloaded state: a sub-step at this fraction of the
+#: approach first. (The rigid predictor's initial penetration, the whole approach, sends Newton
+#: astray against a mesh master with a stiff penalty: measured at the coarse level with the
+#: factor 100, 30 iterations without converging at the approach of F/2, and 10 + 15 iterations
+#: with the sub-step.)
+COLD_START_FRACTION = 0.2
 
 
 @dataclass(frozen=True)
 class HertzSolution:
-    """Hertz theory for a ball on a rigid counterpart (SI units)."""
+    """Hertz theory for a ball on a counterpart (SI units)."""
 
     contact_radius: float  # a, m
     max_pressure: float  # p0, Pa
@@ -69,9 +85,18 @@ def hertz_solution(
     youngs_modulus: float,
     poisson_ratio: float,
     socket_radius: float | None = None,
+    counterpart_youngs_modulus: float | None = None,
+    counterpart_poisson_ratio: float = 0.0,
 ) -> HertzSolution:
-    """Hertz's contact radius, peak pressure and approach (rigid flat, or rigid socket)."""
-    e_star = youngs_modulus / (1.0 - poisson_ratio**2)
+    """Hertz's contact radius, peak pressure and approach (flat, or socket of ``socket_radius``).
+
+    The counterpart is rigid unless ``counterpart_youngs_modulus`` is given:
+    1/E* = (1 − ν²)/E + (1 − ν₂²)/E₂.
+    """
+    compliance = (1.0 - poisson_ratio**2) / youngs_modulus
+    if counterpart_youngs_modulus is not None:
+        compliance += (1.0 - counterpart_poisson_ratio**2) / counterpart_youngs_modulus
+    e_star = 1.0 / compliance
     r_eff = radius if socket_radius is None else radius * socket_radius / (socket_radius - radius)
     a = (3.0 * force * r_eff / (4.0 * e_star)) ** (1.0 / 3.0)
     return HertzSolution(a, 3.0 * force / (2.0 * math.pi * a * a), a * a / r_eff, r_eff, e_star)
@@ -88,6 +113,10 @@ class HertzModel:
     socket_radius: float | None
     youngs_modulus: float
     poisson_ratio: float
+    counterpart_youngs_modulus: float | None  # None: rigid
+    counterpart_poisson_ratio: float | None
+    block_half_width: float | None  # deformable_flat only (m)
+    block_depth: float | None
     force: float
     load_steps: int
     contact_method: str
@@ -108,18 +137,29 @@ class HertzModel:
             self.youngs_modulus,
             self.poisson_ratio,
             self.socket_radius,
+            self.counterpart_youngs_modulus,
+            self.counterpart_poisson_ratio or 0.0,
         )
 
-    def master(self) -> Plane | Sphere:
-        """The rigid counterpart."""
+    @property
+    def deformable(self) -> bool:
+        """Whether the counterpart is an elastic block of the mesh."""
+        return self.counterpart_youngs_modulus is not None
+
+    def master(self) -> Plane | Sphere | MeshSurface:
+        """The counterpart: an analytic rigid surface, or the block's top face."""
+        from .meshes.contact_bodies import BLOCK_TOP
+
+        if self.deformable:
+            return MeshSurface((BLOCK_TOP.id,))
         if self.socket_radius is None:
             return Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
         return Sphere((0.0, 0.0, self.socket_radius), self.socket_radius, concave=True)
 
 
 def build(scene: Scene, level: str | None, comm: MPI.Comm) -> HertzModel:
-    """Check the parameters together and mesh the quarter ball of ``level``."""
-    from .meshes.contact_bodies import build_hemisphere
+    """Check the parameters together and mesh the quarter ball (and block) of ``level``."""
+    from .meshes.contact_bodies import build_ball_on_block, build_hemisphere
 
     p = scene.values()
     level = level or scene.default_level
@@ -133,21 +173,38 @@ def build(scene: Scene, level: str | None, comm: MPI.Comm) -> HertzModel:
             f"{scene.where('socket_radius', 'radius')}: socket_radius = {socket} m must exceed "
             f"radius = {p['radius']} m"
         )
-    sol = hertz_solution(p["force"], p["radius"], p["youngs_modulus"], p["poisson_ratio"], socket)
+    deformable = p["geometry"] == "deformable_flat"
+    e2 = p["counterpart_youngs_modulus"] if deformable else None
+    nu2 = p["counterpart_poisson_ratio"] if deformable else None
+    sol = hertz_solution(
+        p["force"], p["radius"], p["youngs_modulus"], p["poisson_ratio"], socket, e2, nu2 or 0.0
+    )
     if sol.contact_radius > 0.3 * p["radius"]:
         raise SceneError(
             f"{scene.where('force')}: force = {p['force']} N gives a Hertz contact radius "
             f"{sol.contact_radius:.3g} m > 0.3 R: outside half-space theory; lower the force"
         )
     h_contact = float(lv["h_contact"]) * sol.contact_radius
-    mesh, cell_tags, facet_tags = build_hemisphere(
-        comm,
-        p["radius"],
-        h_contact,
-        float(lv["h_far"]) * p["radius"],
-        float(lv["refine_radius"]) * sol.contact_radius,
-        quarter=True,
-    )
+    h_far = float(lv["h_far"]) * p["radius"]
+    refine_radius = float(lv["refine_radius"]) * sol.contact_radius
+    width = depth = None
+    if deformable:
+        width = p["block_half_width"] * sol.contact_radius
+        depth = p["block_depth"] * sol.contact_radius
+        if not refine_radius < min(width, depth):
+            raise SceneError(
+                f"{scene.where('block_half_width', 'block_depth')}: the block "
+                f"({width:.3g} m wide, {depth:.3g} m deep) must extend beyond the refined "
+                f"region (levels.{level}.refine_radius: {refine_radius:.3g} m)"
+            )
+        mesh, cell_tags, facet_tags = build_ball_on_block(
+            comm, p["radius"], width, depth, h_contact, h_far, refine_radius, quarter=True
+        )
+    else:
+        mesh, cell_tags, facet_tags = build_hemisphere(
+            comm, p["radius"], h_contact, h_far, refine_radius, quarter=True
+        )
+    softer = p["youngs_modulus"] if e2 is None else min(p["youngs_modulus"], e2)
     return HertzModel(
         scene=scene,
         level=level,
@@ -156,10 +213,14 @@ def build(scene: Scene, level: str | None, comm: MPI.Comm) -> HertzModel:
         socket_radius=socket,
         youngs_modulus=p["youngs_modulus"],
         poisson_ratio=p["poisson_ratio"],
+        counterpart_youngs_modulus=e2,
+        counterpart_poisson_ratio=nu2,
+        block_half_width=width,
+        block_depth=depth,
         force=p["force"],
         load_steps=int(p["load_steps"]),
         contact_method=p["contact_method"],
-        penalty=p["penalty_factor"] * p["youngs_modulus"] / h_contact,
+        penalty=p["mesh_penalty_factor" if deformable else "penalty_factor"] * softer / h_contact,
         gap_tolerance=p["gap_tolerance"],
         force_tolerance=p["force_tolerance"],
         degree=int(lv["degree"]),
@@ -192,10 +253,20 @@ def family():
 
 
 class HertzProblem:
-    """The quarter ball with its contact, driven by the approach δ (collective methods)."""
+    """The quarter ball (and block) with its contact, driven by the approach δ (collective)."""
 
     def __init__(self, model: HertzModel, options: dict | None = None):
-        from .meshes.contact_bodies import CONTACT, SYM_X, SYM_Y, TOP
+        from .meshes.contact_bodies import (
+            BALL,
+            BLOCK,
+            BLOCK_BOTTOM,
+            BLOCK_SYM_X,
+            BLOCK_SYM_Y,
+            CONTACT,
+            SYM_X,
+            SYM_Y,
+            TOP,
+        )
 
         self.model = model
         mesh = model.mesh
@@ -203,25 +274,45 @@ class HertzProblem:
         u = self.u = dolfinx.fem.Function(V, name="displacement")
         w = ufl.TestFunction(V)
         q = {"quadrature_degree": 2 * (model.degree - 1)}
-        dx = ufl.Measure("dx", domain=mesh, metadata=q)
+        dx = ufl.Measure("dx", domain=mesh, subdomain_data=model.cell_tags, metadata=q)
         material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
-        self.internal = vp.internal_power_linear(material, u, w, dx)
+        if model.deformable:
+            block = materials.LinearElastic(
+                model.counterpart_youngs_modulus, model.counterpart_poisson_ratio
+            )
+            self.internal = vp.internal_power_linear(
+                material, u, w, dx(BALL.id)
+            ) + vp.internal_power_linear(block, u, w, dx(BLOCK.id))
+        else:
+            self.internal = vp.internal_power_linear(material, u, w, dx)
         self._internal_form = dolfinx.fem.form(self.internal, form_compiler_params=q)
         fdim = mesh.topology.dim - 1
         ft = model.facet_tags
         self.approach = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0.0))
         bcs = []
-        for comp, marker in ((0, SYM_X), (1, SYM_Y)):
+        sym = ((0, SYM_X, BLOCK_SYM_X), (1, SYM_Y, BLOCK_SYM_Y))
+        for comp, *markers in sym:
+            facets = np.unique(np.concatenate([ft.find(m.id) for m in markers]))
             Vi, _ = V.sub(comp).collapse()
-            dofs_i = dolfinx.fem.locate_dofs_topological(
-                (V.sub(comp), Vi), fdim, ft.find(marker.id)
-            )
+            dofs_i = dolfinx.fem.locate_dofs_topological((V.sub(comp), Vi), fdim, facets)
             zero = dolfinx.fem.Function(Vi)
             bcs.append(dolfinx.fem.dirichletbc(zero, dofs_i, V.sub(comp)))
         top = dolfinx.fem.locate_dofs_topological(V.sub(2), fdim, ft.find(TOP.id))
         self._top_dofs = top
         self.minus_approach = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0.0))
         bcs.append(dolfinx.fem.dirichletbc(self.minus_approach, top, V.sub(2)))
+        self._bottom_dofs = None
+        if model.deformable:  # the block's bottom fixed in z
+            bottom = dolfinx.fem.locate_dofs_topological(V.sub(2), fdim, ft.find(BLOCK_BOTTOM.id))
+            self._bottom_dofs = bottom
+            zero = PETSc.ScalarType(0.0)
+            bcs.append(dolfinx.fem.dirichletbc(zero, bottom, V.sub(2)))
+            # the ball's nodes (blocked indices): the rigid predictor moves them only
+            self._ball_nodes = dolfinx.fem.locate_dofs_topological(
+                V, mesh.topology.dim, model.cell_tags.find(BALL.id)
+            )
+        else:
+            self._ball_nodes = slice(None)
         self.bcs = bcs
         pair = ContactPair(
             "ball",
@@ -242,19 +333,36 @@ class HertzProblem:
                 "snes_atol": 1e-9 * force_scale,
                 "snes_rtol": 1e-9,
                 "snes_divergence_tolerance": -1.0,
+                # mesh master: the active set settles over more iterations (measured: up to 17)
+                **({"snes_max_it": 50} if model.deformable else {}),
                 **(options or {}),
             },
             form_compiler_params=q,
             contact=self.contact,
         )
         self.delta = 0.0
+        #: the solution before the last one: (approach, displacement array)
+        self._previous = (0.0, np.zeros_like(u.x.array))
         self.newton: list[int] = []
         self.uzawa: list[int] = []
 
-    def solve(self, delta: float, step: str) -> float:
-        """Drive the top face down by ``delta`` (m); return the total contact force (N)."""
-        shift = delta - self.delta
-        self.u.x.array.reshape(-1, 3)[:, 2] -= shift  # rigid predictor
+    def solve(self, delta: float, step: str, cold_start: bool = True) -> float:
+        """Drive the top face down by ``delta`` (m); return the total contact force (N).
+
+        Predictor: the ball moved rigidly by the change of approach. With a deformable flat
+        (where the rigid move would push the whole increment into the block), the displacement
+        interpolated linearly in the approach between the last two solutions (the unloaded state
+        counting as one), after, from the unloaded state, a sub-step at
+        :data:`COLD_START_FRACTION` of the approach.
+        """
+        if cold_start and self.model.deformable and self.delta <= 0 < delta:
+            self.solve(COLD_START_FRACTION * delta, f"{step} (cold-start sub-step)", False)
+        current = (self.delta, self.u.x.array.copy())
+        (d0, u0), d1 = self._previous, self.delta
+        if self.model.deformable and delta > 0 and d1 > 0 and d1 != d0:
+            self.u.x.array[:] += (delta - d1) / (d1 - d0) * (self.u.x.array - u0)
+        else:
+            self.u.x.array.reshape(-1, 3)[self._ball_nodes, 2] -= delta - d1  # rigid
         self.u.x.scatter_forward()
         self.minus_approach.value = -delta
         self.delta = delta
@@ -270,6 +378,7 @@ class HertzProblem:
                 MAX_UZAWA,
                 self.solver.prefix,
             )
+        self._previous = current
         return self.contact_force()
 
     def contact_force(self) -> float:
@@ -278,11 +387,17 @@ class HertzProblem:
 
     def top_reaction(self) -> float:
         """Total force (N, along z) the driven face exerts on the ball, from the FE residual."""
+        return self._reaction(self._top_dofs)
+
+    def bottom_reaction(self) -> float | None:
+        """Total force (N, along z) the support exerts on the block (None: rigid counterpart)."""
+        return None if self._bottom_dofs is None else self._reaction(self._bottom_dofs)
+
+    def _reaction(self, dofs: np.ndarray) -> float:
         vec = fem_petsc.assemble_vector(self._internal_form)
         vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         n_owned = self.V.dofmap.index_map.size_local * 3
-        top = self._top_dofs[self._top_dofs < n_owned]
-        local = float(np.sum(vec.array_r[top]))
+        local = float(np.sum(vec.array_r[dofs[dofs < n_owned]]))
         vec.destroy()
         return SYMMETRY_FACTOR * self.u.function_space.mesh.comm.allreduce(local, op=MPI.SUM)
 
@@ -335,8 +450,16 @@ def run(model: HertzModel, recorder, monitor, fields_dir, options=None) -> None:
     """Press the ball to the scene's force in ``load_steps`` increments; record against Hertz."""
     problem = HertzProblem(model, options)
     recorder.set_parameter("socket_radius", model.socket_radius, "m")
-    recorder.set_parameter("counterpart_youngs_modulus", "rigid", "Pa")
-    recorder.set_parameter("counterpart_poisson_ratio", "rigid", "1")
+    if model.deformable:
+        recorder.set_parameter("counterpart_youngs_modulus", model.counterpart_youngs_modulus, "Pa")
+        recorder.set_parameter("counterpart_poisson_ratio", model.counterpart_poisson_ratio, "1")
+        recorder.set_parameter("block_half_width_m", model.block_half_width, "m")
+        recorder.set_parameter("block_depth_m", model.block_depth, "m")
+    else:
+        recorder.set_parameter("counterpart_youngs_modulus", "rigid", "Pa")
+        recorder.set_parameter("counterpart_poisson_ratio", "rigid", "1")
+        recorder.set_parameter("block_half_width", None, "1")
+        recorder.set_parameter("block_depth", None, "1")
     recorder.set_parameter("penalty", model.penalty, "Pa/m")
     recorder.set_parameter("h_contact", model.h_contact, "m")
     reached = 0.0
@@ -377,6 +500,9 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
     recorder.set_probe("force_reached", reached, "N")
     recorder.set_probe("contact_force", problem.contact_force(), "N")
     recorder.set_probe("top_reaction_force", problem.top_reaction(), "N")
+    bottom = problem.bottom_reaction()
+    if bottom is not None:
+        recorder.set_probe("bottom_reaction_force", bottom, "N")
     recorder.set_probe("max_contact_pressure", res["max_pressure"], "Pa")
     recorder.set_probe("contact_radius", radius, "m")
     recorder.set_probe("contact_area", SYMMETRY_FACTOR * res["area"], "m^2")
@@ -387,6 +513,7 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
         recorder.set_probe("hertz_max_pressure", theory.max_pressure, "Pa")
         recorder.set_probe("hertz_contact_radius", theory.contact_radius, "m")
         recorder.set_probe("hertz_approach", theory.approach, "m")
+        recorder.set_probe("hertz_effective_modulus", theory.effective_modulus, "Pa")
         recorder.set_probe(
             "max_pressure_rel_error", res["max_pressure"] / theory.max_pressure - 1.0, "1"
         )

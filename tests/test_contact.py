@@ -507,6 +507,45 @@ def test_ball_in_socket_against_conforming_hertz(comm_tmp):
     assert abs(p["contact_radius_rel_error"]) < 0.075
 
 
+def test_hertz_formulas_deformable_counterpart():
+    """1/E* = (1 − ν1²)/E1 + (1 − ν2²)/E2: two equal steel bodies halve E*, so a grows by 2^(1/3)
+    and p0 falls by 2^(2/3) against the rigid flat (a = 1.1598 mm, p0 = 3.5497 GPa)."""
+    rigid = hertz_solution(1e4, 0.024, 210e9, 0.3)
+    s = hertz_solution(1e4, 0.024, 210e9, 0.3, None, 210e9, 0.3)
+    assert s.effective_modulus == pytest.approx(210e9 / (2 * 0.91))
+    assert s.contact_radius == pytest.approx(rigid.contact_radius * 2 ** (1 / 3))
+    assert s.max_pressure == pytest.approx(rigid.max_pressure / 2 ** (2 / 3))
+    assert s.contact_radius == pytest.approx(1.1598e-3, rel=1e-4)
+    soft = hertz_solution(1e4, 0.024, 210e9, 0.3, None, 70e9, 0.25)
+    assert 1 / soft.effective_modulus == pytest.approx(0.91 / 210e9 + (1 - 0.25**2) / 70e9)
+
+
+def test_hertz_ball_on_deformable_flat(comm_tmp):
+    """Mesh-to-mesh Hertz: the ball (slave) on an elastic block of the same steel (master,
+    segment integration), E* = E/(2(1 − ν²)), block 20 a. Measured (mesh_penalty_factor 2):
+    peak pressure +0.4 % at coarse, +3.2 % at medium; contact radius −0.1 % at coarse, +0.3 %
+    at medium. The peak is a quadrature-point maximum over non-matching faceted surfaces, whose
+    misfit the penalty turns into pressure oscillations: it does not converge monotonically
+    (more points, larger extremes), hence a tolerance set by the medium level, the issue's 5 %;
+    the radius (from the area) within 2 %, six times the larger measured error. The contact
+    force is F; the driven face's and the support's reactions balance it."""
+    scene = load_scene("hertz").with_values(geometry="deformable_flat")
+    res = run(scene, "coupled", level="coarse", out=comm_tmp / "deformable")
+    p, par = res.probes, res.parameters
+    assert par["counterpart_youngs_modulus"] == pytest.approx(210e9)
+    assert par["counterpart_poisson_ratio"] == pytest.approx(0.3)
+    assert par["socket_radius"] is None
+    theory = hertz_solution(1e4, 0.024, 210e9, 0.3, None, 210e9, 0.3)
+    assert p["hertz_effective_modulus"] == pytest.approx(210e9 / (2 * (1 - 0.3**2)))
+    assert p["hertz_contact_radius"] == pytest.approx(theory.contact_radius)
+    assert p["hertz_max_pressure"] == pytest.approx(theory.max_pressure)
+    assert p["contact_force"] == pytest.approx(1e4, rel=2e-4)
+    assert p["top_reaction_force"] == pytest.approx(-p["contact_force"], rel=1e-7)
+    assert p["bottom_reaction_force"] == pytest.approx(p["contact_force"], rel=1e-7)
+    assert abs(p["max_pressure_rel_error"]) < 0.05
+    assert abs(p["contact_radius_rel_error"]) < 0.02
+
+
 @pytest.mark.mpi
 def test_hertz_serial_and_mpi_agree(comm_tmp):
     """The Hertz run on all ranks and on each rank alone: the same probes (1e-6 relative: the

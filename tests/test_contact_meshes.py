@@ -16,7 +16,8 @@ R - g <= |x - c| <= R. Hence, for the body (convex, flat faces exact):
 
 g is measured on the mesh and checked against its a priori size h_far²/(2R) (1 % of R here), so
 these brackets are tight. Block faces
-are planar and meshed exactly: their areas and volumes are exact to round-off (1e-12).
+are planar and meshed exactly: their areas and volumes are exact to round-off (1e-12). The ball on
+a block: the ball's brackets as above, the block's measures exact.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ R = 24 * MM
 HEMI = dict(radius=R, h_contact=0.5 * MM, h_far=5.0 * MM, refine_radius=4.0 * MM)
 LOWER, UPPER = (30 * MM, 20 * MM, 10 * MM), (12 * MM, 8 * MM, 6 * MM)
 BLOCKS = dict(lower=LOWER, upper=UPPER, h_lower=4 * MM, h_upper=2.5 * MM)
+BOB = dict(radius=R, block_half_width=12 * MM, block_depth=10 * MM, **{
+    k: HEMI[k] for k in ("h_contact", "h_far", "refine_radius")
+})  # fmt: skip
 
 
 # --- helpers: global measures from the local owned entities ---------------------------------
@@ -120,6 +124,11 @@ def quarter():
 @pytest.fixture(scope="module")
 def full():
     return cb.build_hemisphere(MPI.COMM_WORLD, **HEMI, quarter=False)
+
+
+@pytest.fixture(scope="module")
+def ball_on_block():
+    return cb.build_ball_on_block(MPI.COMM_WORLD, **BOB)
 
 
 @pytest.fixture(scope="module")
@@ -308,6 +317,121 @@ def test_two_blocks_bad_input():
         cb.build_two_blocks(MPI.COMM_WORLD, LOWER, (1 * MM, 0.0, 1 * MM), 1 * MM, 1 * MM)
 
 
+# --- ball on block --------------------------------------------------------------------------
+
+
+def _cell_nodes(mesh, ct, marker) -> np.ndarray:
+    """Global indices of the vertices of the cells tagged ``marker`` (every rank)."""
+    imap = mesh.topology.index_map(0)
+    mesh.topology.create_connectivity(3, 0)
+    c2v = mesh.topology.connectivity(3, 0)
+    local = np.unique(c2v.array.reshape(-1, 4)[_tagged(mesh, ct, marker, owned=False)])
+    return np.unique(_gather(mesh.comm, imap.local_to_global(local.astype(np.int32))))
+
+
+def test_ball_on_block_measures_markers_and_planes(ball_on_block):
+    mesh, ct, ft = ball_on_block
+    w, d = BOB["block_half_width"], BOB["block_depth"]
+    g = _max_sagitta(mesh, ft, R)
+    assert 0 < g <= HEMI["h_far"] ** 2 / (2 * R), g
+    s = 1 - g / R
+    ball = {
+        cb.BALL: 2 / 3 * math.pi * R**3 / 4,
+        cb.CONTACT: 2 * math.pi * R**2 / 4,
+        cb.TOP: math.pi * R**2 / 4,
+        cb.SYM_X: math.pi * R**2 / 4,
+        cb.SYM_Y: math.pi * R**2 / 4,
+    }
+    block = {
+        cb.BLOCK: w * w * d,
+        cb.BLOCK_TOP: w * w,
+        cb.BLOCK_BOTTOM: w * w,
+        **{m: w * d for m in (cb.BLOCK_SYM_X, cb.BLOCK_SYM_Y, cb.BLOCK_XMAX, cb.BLOCK_YMAX)},
+    }
+    assert set(cb.BALL_ON_BLOCK_MARKERS.values()) == set(ball) | set(block) | {
+        cb.BLOCK_XMIN,
+        cb.BLOCK_YMIN,
+    }
+    rel = 1e-12
+    for marker, exact in {**ball, **block}.items():
+        tags = ct if marker.dim == 3 else ft
+        assert _count(mesh, tags, marker) > 0, marker.name
+        ratio = _measure(mesh, tags, marker) / exact
+        if marker is cb.BALL:
+            assert s**3 * (1 - rel) <= ratio <= 1 + rel
+        elif marker is cb.CONTACT:
+            assert s**2 * (1 - rel) <= ratio <= (1 + rel) / s
+        elif marker in ball:
+            assert s**2 * (1 - rel) <= ratio <= 1 + rel, marker.name
+        else:
+            assert ratio == pytest.approx(1.0, rel=rel), marker.name
+    for marker in (cb.BLOCK_XMIN, cb.BLOCK_YMIN):  # quarter: no face at -w
+        assert _count(mesh, ft, marker) == 0
+    planes = {
+        cb.TOP: (2, R), cb.SYM_X: (0, 0.0), cb.SYM_Y: (1, 0.0),
+        cb.BLOCK_TOP: (2, 0.0), cb.BLOCK_BOTTOM: (2, -d),
+        cb.BLOCK_SYM_X: (0, 0.0), cb.BLOCK_SYM_Y: (1, 0.0),
+        cb.BLOCK_XMAX: (0, w), cb.BLOCK_YMAX: (1, w),
+    }  # fmt: skip
+    for marker, (axis, value) in planes.items():
+        q = _points(mesh, 2, _tagged(mesh, ft, marker, owned=False)).reshape(-1, 3)
+        assert np.all(q[:, axis] == value), marker.name  # exactly on its plane
+    _assert_boundary_tagged(mesh, ft)  # every face of both bodies tagged once
+    assert (
+        _count(mesh, ct, cb.BALL) + _count(mesh, ct, cb.BLOCK)
+        == mesh.topology.index_map(3).size_global
+    )
+
+
+def test_ball_on_block_share_no_node_and_refined_at_pole(ball_on_block):
+    """Two independent meshes (the ball's pole and the block's corner are distinct nodes at the
+    origin), both refined near the pole: edges of the cells within refine_radius have a median
+    of h_contact within 15 % in each body; the block's bottom, far away, is coarser."""
+    mesh, ct, ft = ball_on_block
+    ball, block = _cell_nodes(mesh, ct, cb.BALL), _cell_nodes(mesh, ct, cb.BLOCK)
+    assert len(ball) + len(block) == mesh.topology.index_map(0).size_global
+    assert len(np.intersect1d(ball, block)) == 0
+    x = mesh.geometry.x
+    at_origin = mesh.comm.allreduce(
+        int(np.count_nonzero(np.all(np.abs(x[: mesh.topology.index_map(0).size_local]) == 0.0,
+                                    axis=1))),
+        op=MPI.SUM,
+    )  # fmt: skip
+    assert at_origin == 2  # the ball's pole and the block's corner
+    hc, rr = BOB["h_contact"], BOB["refine_radius"]
+    for marker in (cb.BALL, cb.BLOCK):
+        p = _points(mesh, 3, _tagged(mesh, ct, marker))
+        near = np.linalg.norm(p, axis=2).max(axis=1) <= rr
+        e = _gather(mesh.comm, _edges(p[near]).ravel()) / hc
+        assert len(e) >= 6 * 50, marker.name
+        assert 0.85 <= np.median(e) <= 1.15, (marker.name, np.median(e))
+    bottom = _gather(
+        mesh.comm, _edges(_points(mesh, 2, _tagged(mesh, ft, cb.BLOCK_BOTTOM))).ravel()
+    )
+    # the size requested at the bottom's distance (>= depth) from the pole: h_contact + grading
+    # (d - refine_radius), below h_far here
+    h_bottom = min(HEMI["h_far"], hc + cb.DEFAULT_GRADING * (BOB["block_depth"] - rr))
+    assert np.median(bottom) > 0.8 * h_bottom > 2 * hc
+
+
+def test_ball_on_block_full_and_bad_input():
+    mesh, ct, ft = cb.build_ball_on_block(
+        MPI.COMM_WORLD, R, 12 * MM, 10 * MM, 2 * MM, 6 * MM, 4 * MM, quarter=False
+    )
+    w, d = 12 * MM, 10 * MM
+    assert _measure(mesh, ct, cb.BLOCK) == pytest.approx(4 * w * w * d, rel=1e-12)
+    assert _measure(mesh, ft, cb.BLOCK_TOP) == pytest.approx(4 * w * w, rel=1e-12)
+    for marker in (cb.BLOCK_XMIN, cb.BLOCK_XMAX, cb.BLOCK_YMIN, cb.BLOCK_YMAX):
+        assert _measure(mesh, ft, marker) == pytest.approx(2 * w * d, rel=1e-12), marker.name
+    for marker in (cb.SYM_X, cb.SYM_Y, cb.BLOCK_SYM_X, cb.BLOCK_SYM_Y):
+        assert _count(mesh, ft, marker) == 0, marker.name
+    _assert_boundary_tagged(mesh, ft)
+    with pytest.raises(ValueError, match="ball on block"):
+        cb.build_ball_on_block(MPI.COMM_WORLD, R, 0.0, 10 * MM, 1 * MM, 2 * MM, 4 * MM)
+    with pytest.raises(ValueError, match="h_contact"):
+        cb.build_ball_on_block(MPI.COMM_WORLD, R, 12 * MM, 10 * MM, 2 * MM, 1 * MM, 4 * MM)
+
+
 # --- determinism, MPI, gmsh session ---------------------------------------------------------
 
 
@@ -319,11 +443,13 @@ def _signature(mesh, ct, ft) -> tuple:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("builder", ["hemisphere", "two_blocks"])
+@pytest.mark.parametrize("builder", ["hemisphere", "two_blocks", "ball_on_block"])
 def test_same_parameters_same_mesh(builder):
     def build():
         if builder == "hemisphere":
             return cb.build_hemisphere(MPI.COMM_SELF, **HEMI)
+        if builder == "ball_on_block":
+            return cb.build_ball_on_block(MPI.COMM_SELF, **BOB)
         return cb.build_two_blocks(MPI.COMM_SELF, **BLOCKS, gap=0.0, offset=(9 * MM, 6 * MM))
 
     first, second = _signature(*build()), _signature(*build())
@@ -331,7 +457,7 @@ def test_same_parameters_same_mesh(builder):
         assert a.shape == b.shape and np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("which", ["quarter", "blocks"])
+@pytest.mark.parametrize("which", ["quarter", "blocks", "ball_on_block"])
 def test_distributed_equals_serial(which, request):
     """On COMM_WORLD (distributed under mpirun) the global counts and measures equal those of
     the same mesh built on one rank (COMM_SELF)."""
@@ -339,6 +465,9 @@ def test_distributed_equals_serial(which, request):
     if which == "quarter":
         alone = cb.build_hemisphere(MPI.COMM_SELF, **HEMI)
         markers = list(cb.HEMISPHERE_MARKERS.values())
+    elif which == "ball_on_block":
+        alone = cb.build_ball_on_block(MPI.COMM_SELF, **BOB)
+        markers = list(cb.BALL_ON_BLOCK_MARKERS.values())
     else:
         alone = cb.build_two_blocks(MPI.COMM_SELF, **BLOCKS, gap=0.0, offset=(9 * MM, 6 * MM))
         markers = list(cb.TWO_BLOCKS_MARKERS.values())

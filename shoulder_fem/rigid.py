@@ -94,6 +94,16 @@ def hat(v: ArrayLike) -> FloatArray:
     return _hat(_vector3(v, "v"))
 
 
+def hats(v: ArrayLike) -> FloatArray:
+    """:func:`hat` of every vector of ``v`` (..., 3): the matrices (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    h = np.zeros(v.shape + (3,))
+    h[..., 0, 1], h[..., 0, 2] = -v[..., 2], v[..., 1]
+    h[..., 1, 0], h[..., 1, 2] = v[..., 2], -v[..., 0]
+    h[..., 2, 0], h[..., 2, 1] = -v[..., 1], v[..., 0]
+    return h
+
+
 def _hat(v: FloatArray) -> FloatArray:
     """:func:`hat` without input checks, for trusted (3,) float arrays in inner loops."""
     x, y, z = v

@@ -82,7 +82,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .rigid import RigidState, exp_so3, hat, log_so3, right_jacobian
+from .rigid import RigidState, exp_so3, hat, hats, log_so3, right_jacobian
 from .solver import ConvergenceError, SolveStats, _reason_name, default_snes_options, unique_prefix
 from .springs import GROUND, Spring, spring_response
 
@@ -796,7 +796,7 @@ class RigidSystem:
                 body = self.bodies[b]
                 f = f_all[owned]
                 r = (self._X[owned] - body.reference_point) @ body.rotation.T
-                G = np.einsum("nij,njk->ik", _hats(f), _hats(r))
+                G = np.einsum("nij,njk->ik", hats(f), hats(r))
                 local[b] = np.r_[f.sum(axis=0), np.cross(r, f).sum(axis=0), G.ravel()]
         total = self.comm.allreduce(local, op=MPI.SUM)
         return total[:, :3], total[:, 3:6], total[:, 6:].reshape(nb, 3, 3)
@@ -1260,12 +1260,3 @@ class RigidSystem:
             objs += [self._P, self._C, self._K, self._F]
         for obj in objs:
             obj.destroy()
-
-
-def _hats(v: np.ndarray) -> np.ndarray:
-    """hat() of every row of ``v`` (n, 3) → (n, 3, 3)."""
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
-    return out

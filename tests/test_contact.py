@@ -591,19 +591,7 @@ def test_rigid_plate_presses_column_through_contact():
         "upper_ymin",
         "upper_ymax",
     ]
-    markers = {
-        m.name: m.id
-        for m in (
-            cb.LOWER_BOTTOM,
-            cb.UPPER_BOTTOM,
-            cb.UPPER_TOP,
-            cb.UPPER_XMIN,
-            cb.UPPER_XMAX,
-            cb.UPPER_YMIN,
-            cb.UPPER_YMAX,
-        )
-    }
-    surfaces = {name: (ft, tag) for name, tag in markers.items()}
+    surfaces = {n: (ft, cb.TWO_BLOCKS_MARKERS[n].id) for n in [*plate_faces, "lower_bottom"]}
     force = 2e5
     c0 = np.array([0.25, 0.25, t / 2])
     plate = RigidBody("plate", c0, force=[0.0, 0.0, -force])

@@ -385,6 +385,10 @@ class HertzProblem:
         """Total (full-ball) contact force along z (N)."""
         return SYMMETRY_FACTOR * float(self.contact.resultants()["ball"]["force"][2])
 
+    def contact_radius(self, res: dict) -> float:
+        """Contact radius (m) of the full ball from the quarter's contact area in ``res``."""
+        return math.sqrt(SYMMETRY_FACTOR * res["area"] / math.pi)
+
     def top_reaction(self) -> float:
         """Total force (N, along z) the driven face exerts on the ball, from the FE residual."""
         return self._reaction(self._top_dofs)
@@ -470,7 +474,7 @@ def run(model: HertzModel, recorder, monitor, fields_dir, options=None) -> None:
             reached = force
             res = problem.contact.resultants()["ball"]
             theory = model.theory(force)
-            radius = math.sqrt(SYMMETRY_FACTOR * res["area"] / math.pi)
+            radius = problem.contact_radius(res)
             recorder.add_series_point("max_contact_pressure", force, res["max_pressure"], "N", "Pa")
             recorder.add_series_point("hertz_max_pressure", force, theory.max_pressure, "N", "Pa")
             recorder.add_series_point("contact_radius", force, radius, "N", "m")
@@ -496,9 +500,9 @@ def run(model: HertzModel, recorder, monitor, fields_dir, options=None) -> None:
 def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) -> None:
     res = problem.contact.resultants()["ball"]
     theory = model.theory(reached) if reached > 0 else None
-    radius = math.sqrt(SYMMETRY_FACTOR * res["area"] / math.pi)
+    radius = problem.contact_radius(res)
     recorder.set_probe("force_reached", reached, "N")
-    recorder.set_probe("contact_force", problem.contact_force(), "N")
+    recorder.set_probe("contact_force", SYMMETRY_FACTOR * float(res["force"][2]), "N")
     recorder.set_probe("top_reaction_force", problem.top_reaction(), "N")
     bottom = problem.bottom_reaction()
     if bottom is not None:

@@ -13,6 +13,8 @@ import logging
 import sys
 from pathlib import Path
 
+from .scene import LEVELS
+
 logger = logging.getLogger("shoulder_fem")
 
 EXIT_INPUT = 2
@@ -81,10 +83,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _common_run_args(p: argparse.ArgumentParser) -> None:
+def add_scene_arguments(p: argparse.ArgumentParser, example: str = "spin_rate=600rpm") -> None:
+    """``--level`` and ``--set KEY=VALUE`` (repeatable), shared by every scene command."""
     p.add_argument(
         "--level",
-        choices=["coarse", "medium", "paper", "fine"],
+        choices=list(LEVELS),
         default=None,
         help="mesh level (default: the scene's)",
     )
@@ -94,8 +97,12 @@ def _common_run_args(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override a scene parameter (SI, or with a unit: spin_rate=600rpm)",
+        help=f"override a scene parameter (SI, or with a unit: {example})",
     )
+
+
+def _common_run_args(p: argparse.ArgumentParser) -> None:
+    add_scene_arguments(p)
     p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
     p.add_argument(
         "--linear-solver",

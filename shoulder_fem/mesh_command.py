@@ -49,24 +49,16 @@ COLOURS = {
 
 def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``mesh`` sub-command to the CLI's sub-parsers."""
+    from .cli import add_scene_arguments
+
     p = subparsers.add_parser("mesh", help="build the mesh of a shoulder scene")
     p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
-    p.add_argument(
-        "--level", choices=["coarse", "medium", "paper", "fine"], default=None, help="mesh level"
-    )
+    add_scene_arguments(p, example="head_radius=22mm")
     p.add_argument(
         "--variant",
         choices=["deformable", "rigid-bone"],
         default="deformable",
         help="bone volumes meshed (deformable) or only the bone surfaces (rigid-bone)",
-    )
-    p.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scene parameter (SI, or with a unit: head_radius=22mm)",
     )
     p.add_argument(
         "--ct", type=Path, default=None, help="CT image (NIfTI file or DICOM folder) for density"

@@ -152,7 +152,7 @@ SOFT_SURFACES = tuple(
     m for m in SURFACES if m.name.startswith(("humeral_", "glenoid_")) or m.name.startswith(MUSCLES)
 )
 
-VARIANTS = ("deformable", "rigid-bone")
+VARIANTS = ("deformable", "rigid-bone", "scapula")
 HEAD_SHAPES = ("spherical", "ellipsoidal", "prosthetic")
 
 _MM = 1e3  # gmsh works in mm
@@ -1178,14 +1178,22 @@ class ShoulderMesh:
     info: dict = field(default_factory=dict)
 
 
-def model_to_dolfinx(comm: MPI.Comm, info: dict | None, variant: str, rank: int = 0):
+def model_to_dolfinx(
+    comm: MPI.Comm, info: dict | None, variant: str, rank: int = 0, detach: tuple = ()
+):
     """Turn the meshed gmsh model (on ``rank``) into dolfinx meshes with tags, scaled to metres.
 
     Args:
         comm: communicator the meshes are distributed on (collective).
         info: the result of :func:`build_model` on ``rank`` (ignored elsewhere).
-        variant: ``"deformable"`` or ``"rigid-bone"``.
+        variant: ``"deformable"``, ``"rigid-bone"`` or ``"scapula"`` (the scapula volume and
+            the surfaces on it).
         rank: the rank holding the gmsh model.
+        detach: ``deformable`` only: names of bonded surfaces to cut open, as
+            ``(surface, volume)`` pairs: the volume's cells get their own copy of the
+            surface's nodes (the surface tag then marks the volume's side). E.g.
+            ``(("subscapularis_origin", "subscapularis"),)`` frees a muscle's origin from the
+            bone so that it can be displaced.
 
     Returns:
         (mesh, cell_tags, facet_tags, bone_surface, bone_surface_tags); the last two are None for
@@ -1196,6 +1204,28 @@ def model_to_dolfinx(comm: MPI.Comm, info: dict | None, variant: str, rank: int 
 
     if variant not in VARIANTS:
         raise ValueError(f"variant = {variant!r}: expected one of {VARIANTS}")
+    if variant == "scapula":
+        # the scapula alone (part 2 of the decoupled method): its volume and every surface
+        # whose nodes are all scapula nodes (interfaces, springs, section), node for node those
+        # of the other variants
+        cells = {SCAPULA.id: info["volumes"][SCAPULA.name]} if comm.rank == rank else None
+        facets = (
+            {m.id: info["surfaces"][m.name] for m in SURFACES if m.name in info["surfaces"]}
+            if comm.rank == rank
+            else None
+        )
+        mesh, ct, ft = _tagged_mesh(comm, rank, 3, cells, facets)
+        return mesh, ct, ft, None, None
+    if variant == "deformable" and detach:
+        cells = {m.id: info["volumes"][m.name] for m in VOLUMES} if comm.rank == rank else None
+        facets = (
+            {m.id: info["surfaces"][m.name] for m in SURFACES if m.name in info["surfaces"]}
+            if comm.rank == rank
+            else None
+        )
+        split = tuple((MARKERS[a].id, MARKERS[b].id) for a, b in detach)
+        mesh, ct, ft = _tagged_mesh(comm, rank, 3, cells, facets, split)
+        return mesh, ct, ft, None, None
     if variant == "deformable":
         if comm.rank == rank:
             _set_physical_groups(gmsh, info, bones=True)
@@ -1219,7 +1249,14 @@ def model_to_dolfinx(comm: MPI.Comm, info: dict | None, variant: str, rank: int 
     return mesh, ct, ft, surf, surf_tags
 
 
-def _tagged_mesh(comm: MPI.Comm, rank: int, tdim: int, cells: dict | None, facets: dict | None):
+def _tagged_mesh(
+    comm: MPI.Comm,
+    rank: int,
+    tdim: int,
+    cells: dict | None,
+    facets: dict | None,
+    split: tuple = (),
+):
     """A dolfinx mesh (m) of the gmsh elements on the given entities, with cell and facet tags.
 
     Args:
@@ -1228,6 +1265,8 @@ def _tagged_mesh(comm: MPI.Comm, rank: int, tdim: int, cells: dict | None, facet
         tdim: 3 (tetrahedra) or 2 (triangles in 3D).
         cells: on ``rank``: tag value -> gmsh entities of dimension ``tdim``.
         facets: on ``rank``: tag value -> gmsh entities of dimension ``tdim - 1`` (or None).
+        split: ``(facet tag, cell tag)`` pairs: the nodes of those facets are duplicated for
+            the cells of that tag (the interface is cut open; the facets keep the copy).
     """
     import dolfinx
     import gmsh
@@ -1267,6 +1306,26 @@ def _tagged_mesh(comm: MPI.Comm, rank: int, tdim: int, cells: dict | None, facet
             facet_topo = compact[facet_topo]
             keep = np.all(facet_topo >= 0, axis=1)
             facet_topo, facet_vals = facet_topo[keep], facet_vals[keep]
+            for facet_tag, cell_tag in split:
+                on = facet_vals == facet_tag
+                nodes = np.unique(facet_topo[on])
+                copy = np.arange(len(x), len(x) + len(nodes))
+                x = np.vstack([x, x[nodes]])
+                remap = np.arange(len(x))
+                remap[nodes] = copy
+                mine = cell_vals == cell_tag
+                cell_topo[mine] = remap[cell_topo[mine]]
+                # every facet of the volume's cells that touches the cut takes the copy
+                touching = mine & np.any(cell_topo >= copy[0], axis=1)
+                faces = {
+                    tuple(sorted(np.delete(c, i)))
+                    for c in cell_topo[touching]
+                    for i in range(nper)
+                }
+                for j in np.flatnonzero(np.any(np.isin(facet_topo, nodes), axis=1)):
+                    moved = remap[facet_topo[j]]
+                    if tuple(sorted(moved)) in faces:
+                        facet_topo[j] = moved
         else:
             facet_topo = np.empty((0, fper), dtype=np.int64)
             facet_vals = np.empty(0, dtype=np.int32)
@@ -1298,9 +1357,10 @@ def build_shoulder_mesh(
     comm: MPI.Comm,
     geometry: ShoulderGeometry,
     sizes: dict,
-    variant: str = "deformable",
+    variant: str | tuple[str, ...] = "deformable",
     rank: int = 0,
-) -> ShoulderMesh:
+    detach: tuple = (),
+) -> ShoulderMesh | dict[str, ShoulderMesh]:
     """Build the gmsh model on ``rank`` and return the dolfinx mesh with tags (collective).
 
     gmsh runs on one rank only, initialised and finalised here (gmsh 4.8 cannot tell whether it is
@@ -1311,13 +1371,19 @@ def build_shoulder_mesh(
         comm: communicator.
         geometry: parameters (SI).
         sizes: mesh sizes in m (see :func:`build_model`).
-        variant: ``"deformable"`` (bone volumes meshed) or ``"rigid-bone"``.
+        variant: ``"deformable"`` (bone volumes meshed), ``"rigid-bone"`` or ``"scapula"``; a
+            tuple of them gives ``{variant: ShoulderMesh}`` from one gmsh mesh (node for node
+            the same points on shared surfaces).
         rank: rank that runs gmsh.
+        detach: bonded ``(surface, volume)`` pairs cut open in the ``deformable`` variant
+            (:func:`model_to_dolfinx`).
     """
     import gmsh
 
-    if variant not in VARIANTS:
-        raise ValueError(f"variant = {variant!r}: expected one of {VARIANTS}")
+    variants = (variant,) if isinstance(variant, str) else tuple(variant)
+    for v in variants:
+        if v not in VARIANTS:
+            raise ValueError(f"variant = {v!r}: expected one of {VARIANTS}")
     error, info = None, None
     if comm.rank == rank:
         try:
@@ -1347,7 +1413,7 @@ def build_shoulder_mesh(
             gmsh.finalize()
         raise ValueError(error)
     try:
-        mesh, ct, ft, surf, surf_tags = model_to_dolfinx(comm, info, variant, rank)
+        built = {v: model_to_dolfinx(comm, info, v, rank, detach) for v in variants}
         summary = None
         if comm.rank == rank:
             summary = {
@@ -1365,7 +1431,8 @@ def build_shoulder_mesh(
             gmsh.clear()
             if initialised_here:
                 gmsh.finalize()
-    return ShoulderMesh(mesh, ct, ft, surf, surf_tags, summary)
+    meshes = {v: ShoulderMesh(*parts, dict(summary)) for v, parts in built.items()}
+    return meshes[variant] if isinstance(variant, str) else meshes
 
 
 def geometry_from_values(values: dict) -> ShoulderGeometry:

@@ -32,10 +32,12 @@ class Family:
     build: Callable  # (scene, level, comm) -> model
     methods: dict[str, Callable]  # method -> run(model, recorder, monitor, fields_dir, options)
     dofs: Callable  # model -> number of displacement DOFs (global)
+    #: build takes the method too: (scene, level, comm, method) (each method meshes its own)
+    method_build: bool = False
 
 
 def _families() -> dict[str, Family]:
-    from . import driven_body, hertz, tied_block, tumbling
+    from . import driven_body, hertz, shoulder, tied_block, tumbling
     from .methods import coupled, decoupled
 
     def driven_dofs(model) -> int:
@@ -54,6 +56,7 @@ def _families() -> dict[str, Family]:
         "tumbling-body": tumbling.family(),
         "tied-block": tied_block.family(),
         "hertz": hertz.family(),
+        "shoulder": shoulder.family(),
     }
 
 
@@ -167,7 +170,10 @@ def run(
         recorder.extra("blas", blas_library())
         recorder.extra("threads", thread_settings())
         with monitor.stage("mesh"):
-            model = family.build(scene, level, comm)
+            if family.method_build:
+                model = family.build(scene, level, comm, method)
+            else:
+                model = family.build(scene, level, comm)
         recorder.extra("dofs", family.dofs(model))
         logger.info(
             "%s / %s / %s: %d DOFs on %d rank(s)",

@@ -293,6 +293,8 @@ def cmd_bench(args) -> int:
             except RunFailed as err:
                 out.commit()
                 raise _SolverFailure(str(err)) from err
+        if scene.family == "shoulder":
+            return _shoulder_report(args, scene, runs, out, comm)
         report = write_comparison(runs["coupled"], runs["decoupled"], out.path, comm)
         report["speedup_cpu"] = report["resources"]["speedup_cpu"]
         report["memory_ratio"] = report["resources"]["memory_ratio"]
@@ -317,6 +319,24 @@ def cmd_bench(args) -> int:
     _print(_probe_lines(runs["coupled"]))
     _print(_probe_lines(runs["decoupled"]))
     _print(_comparison_lines(report))
+    _print(table)
+    _print(f"report: {args.out / 'report.md'}")
+    return 0
+
+
+def _shoulder_report(args, scene, runs: dict, out, comm) -> int:
+    """The shoulder study's report (paper figures, Table II) from the two runs."""
+    from .shoulder_report import comparison_table, write_report
+
+    level = args.level or scene.default_level
+    table = None
+    if comm.rank == 0:
+        report = write_report(out.path / "coupled", out.path / "decoupled", out.path, level)
+        table = comparison_table(report)
+    table = comm.bcast(table, root=0)
+    for method, data in runs.items():
+        if data.get("status") != "ok":
+            _print(f"{method}: {data.get('status')}: {data.get('message')}")
     _print(table)
     _print(f"report: {args.out / 'report.md'}")
     return 0

@@ -363,7 +363,7 @@ class OutputDir:
 SOLVER_KEYS = ("steps", "newton_iterations", "linear_solves", "factorizations", "cutbacks")
 """Counters of :attr:`Recorder.solver_stats`."""
 
-STATUSES = ("ok", "failed")
+STATUSES = ("ok", "failed", "incomplete")
 """Allowed values of a run's status."""
 
 _RESERVED = frozenset(
@@ -491,7 +491,8 @@ class Recorder:
         self.solver_stats[key] += int(n)
 
     def set_status(self, status: str, message: str | None = None) -> None:
-        """Set the run's outcome: ``"ok"`` or ``"failed"`` with a one-line reason."""
+        """Set the run's outcome: ``"ok"``, ``"failed"`` or ``"incomplete"`` (stopped early
+        with its completed steps kept), with a one-line reason."""
         if status not in STATUSES:
             raise ValueError(f"status must be one of {STATUSES}, not {status!r}")
         self.status = status

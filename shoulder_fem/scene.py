@@ -55,6 +55,8 @@ UNITS: dict[str, tuple[str, float]] = {
     "N*m": ("N*m", 1.0),
     "N/m": ("N/m", 1.0),
     "N/mm": ("N/m", 1e3),
+    "Pa/m": ("Pa/m", 1.0),
+    "MPa/mm": ("Pa/m", 1e9),
     "1": ("1", 1.0),
 }
 

@@ -401,6 +401,14 @@ class RigidSystem:
         time: Initial time (s) of a dynamic system (:attr:`time`).
         contact: Contact terms on ``u`` (built with no Dirichlet conditions): a contact
             surface whose nodes are tied to a rigid body moves with it and loads it.
+        linear_ties: Small-rotation kinematics of the tied nodes, ``u = t + φ × (X - X_ref)``
+            with φ the body's total rotation vector (``rotation = exp(hat φ)``), and no
+            geometric (tie-load) terms: with a linear residual the reduced problem is then
+            linear in the tied nodes (the springs keep their exact response). For a linear
+            elastic body in its floating frame (decoupled part 2): finite rotations of plates
+            tied to stiff bone make the residual quadratic in rotations of a mode that only
+            soft springs hold, which ruins the convergence of a chord (one-factorization)
+            iteration. Static only.
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -428,8 +436,14 @@ class RigidSystem:
         dynamic: bool = False,
         time: float = 0.0,
         contact=None,
+        linear_ties: bool = False,
     ) -> None:
         self.bodies = list(bodies)
+        self.linear_ties = bool(linear_ties)
+        if self.linear_ties and dynamic:
+            raise ValueError("RigidSystem: linear_ties is for static systems")
+        if self.linear_ties and any(not np.allclose(b.rotation, np.eye(3)) for b in self.bodies):
+            raise ValueError("RigidSystem: linear_ties needs bodies that start unrotated")
         #: Contact terms (:class:`shoulder_fem.contact.Contact` on ``u``, built without bcs):
         #: added to the FE residual and tangent before the reduction, so that a master surface
         #: whose nodes are tied to a rigid body is a rigid contact surface.
@@ -684,8 +698,11 @@ class RigidSystem:
         for b, owned in enumerate(self._tied_owned):
             cols = self._rigid_cols(b)
             body = self.bodies[b]
-            jl = _left_jacobian(self._phi[b])
-            r = (self._X[owned] - body.reference_point) @ body.rotation.T
+            if self.linear_ties:
+                jl, r = np.eye(3), self._X[owned] - body.reference_point
+            else:
+                jl = _left_jacobian(self._phi[b])
+                r = (self._X[owned] - body.reference_point) @ body.rotation.T
             for node, ri in zip(owned, r, strict=True):
                 block = np.hstack([np.eye(3), -hat(ri) @ jl])
                 rows = self._row0 + 3 * node + np.arange(3, dtype=PETSc.IntType)
@@ -732,6 +749,8 @@ class RigidSystem:
         if self.comm.rank == 0:
             for b, body in enumerate(self.bodies):
                 t, phi = body.translation, np.zeros(3)
+                if self.linear_ties:
+                    phi = self._phi[b].copy()  # the total rotation vector (R0 = I)
                 if targets and body.prescribed and body._target is not None:
                     t = body._target[0]
                     phi = log_so3(body._target[1] @ self._R0[b].T)
@@ -768,7 +787,10 @@ class RigidSystem:
             for b, nodes in enumerate(self._tied_nodes):
                 body = self.bodies[b]
                 d = self._X[nodes] - body.reference_point
-                u[nodes] = body.translation + d @ body.rotation.T - d
+                if self.linear_ties:
+                    u[nodes] = body.translation + np.cross(self._phi[b], d)
+                else:
+                    u[nodes] = body.translation + d @ body.rotation.T - d
             self.u.x.scatter_forward()
 
     # ---- assembly ----------------------------------------------------------------------------
@@ -849,7 +871,10 @@ class RigidSystem:
         nb = len(self.bodies)
         res, tan, self._node_res, self._node_tan = self._spring_terms()
         zeros = np.zeros((nb, 3))
-        _, tie_m, G = self._tie_loads() if with_tangent else (zeros, zeros, np.zeros((nb, 3, 3)))
+        if with_tangent and not self.linear_ties:
+            _, tie_m, G = self._tie_loads()
+        else:
+            tie_m, G = zeros, np.zeros((nb, 3, 3))
         T = np.zeros((6 * nb, 6 * nb))
         moments = np.zeros((nb, 3))
         inertia_tangents = {}
@@ -862,14 +887,16 @@ class RigidSystem:
             moments[b] = res[6 * b + 3 : 6 * b + 6] + tie_m[b]
             tan[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] += G[b]
             T[6 * b : 6 * b + 3, 6 * b : 6 * b + 3] = np.eye(3)
-            T[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] = _left_jacobian(self._phi[b])
+            T[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] = (
+                np.eye(3) if self.linear_ties else _left_jacobian(self._phi[b])
+            )
         tan = T.T @ tan @ T
         self._T = T
         for b, D in inertia_tangents.items():
             # D is already a derivative with respect to (t, φ): only the rows are mapped.
             Tb = T[6 * b : 6 * b + 6, 6 * b : 6 * b + 6]
             tan[6 * b : 6 * b + 6, 6 * b : 6 * b + 6] += Tb.T @ D
-        for b in range(nb):
+        for b in range(0 if self.linear_ties else nb):
             # J_l(φ)ᵀ = J_r(φ): the derivative of the rotation rows' J_lᵀ factor.
             tan[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] += _d_jr_times(
                 self._phi[b], moments[b]
@@ -1154,6 +1181,8 @@ class RigidSystem:
         self._last_inertia = None
 
     def _commit(self) -> None:
+        if self.linear_ties:
+            return  # φ is the total rotation vector, R0 stays the identity
         for b, body in enumerate(self.bodies):
             self._R0[b] = body.rotation.copy()
             self._phi[b] = 0.0

@@ -173,6 +173,60 @@ def test_tangent_is_exact_taylor_test():
     system.destroy()
 
 
+def _linear_block_with_plate(load: float, linear_ties: bool):
+    """Linear elastic block, base fixed, a plate tied to the top under a force and a moment
+    (scaled by ``load``): (system, plate)."""
+    import dolfinx
+
+    from shoulder_fem.forms import materials
+    from shoulder_fem.forms import virtual_power as vp
+    from shoulder_fem.meshes.block import BASE, TOP, build_block
+
+    mesh, _, tags = build_block(MPI.COMM_WORLD, 0.01, 0.04, 2, 4)
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+    u = dolfinx.fem.Function(V)
+    law = materials.LinearElastic(1e9, 0.3)
+    residual = vp.internal_power_linear(law, u, ufl.TestFunction(V), ufl.dx(domain=mesh))
+    plate = RigidBody(
+        "plate", (0, 0, 0.04), force=load * np.array([0.2, -0.1, 0.5]),
+        moment=load * np.array([3e-3, 2e-3, -4e-3]),
+    )
+    system = RigidSystem(
+        [plate], [], u=u, residual=residual,
+        surfaces={"base": (tags, BASE.id), "top": (tags, TOP.id)},
+        ties=[Tie("plate", "top")], fixed=["base"], linear_ties=linear_ties,
+        options={"snes_rtol": 1e-12, "snes_atol": 1e-14, "snes_max_it": 5 if linear_ties else 40},
+    )
+    return system, plate
+
+
+def test_linear_ties_make_a_linear_problem():
+    """With ``linear_ties`` a linear elastic body with a tied plate is a linear problem: one
+    Newton iteration, a response proportional to the load, and the finite-rotation ties'
+    response at a small load (where the two agree to the order of the rotation)."""
+    system, plate = _linear_block_with_plate(1.0, linear_ties=True)
+    its = system.solve("load 1")
+    hist = system.stats.residual_histories[-1]
+    assert its <= 2 and hist[1] < 1e-9 * hist[0], hist
+    t1, u1 = plate.translation.copy(), system.u.x.array.copy()
+    phi1 = log_so3(plate.rotation)
+    system.destroy()
+    system, plate = _linear_block_with_plate(2.0, linear_ties=True)
+    system.solve("load 2")
+    assert np.allclose(plate.translation, 2 * t1, rtol=1e-8, atol=1e-15)
+    assert np.allclose(log_so3(plate.rotation), 2 * phi1, rtol=1e-8, atol=1e-15)
+    assert np.allclose(system.u.x.array, 2 * u1, rtol=1e-8, atol=1e-15)
+    system.destroy()
+    # finite-rotation ties: the rotation is ~1e-4 rad, the difference of that order
+    assert 1e-6 < np.linalg.norm(phi1) < 1e-3
+    system, plate = _linear_block_with_plate(1.0, linear_ties=False)
+    system.solve("finite")
+    scale = np.abs(u1).max()
+    assert np.abs(system.u.x.array - u1).max() < 1e-2 * scale
+    assert np.linalg.norm(log_so3(plate.rotation) - phi1) < 1e-2 * np.linalg.norm(phi1)
+    system.destroy()
+
+
 def test_mass_properties_of_a_bar():
     """A 10 × 10 × 40 mm bar of density 1800 kg/m³ on [-5, 5]² × [0, 40] mm:
     m = ρ a² L, G = (0, 0, L/2), I_xx = I_yy = m (a² + L²)/12, I_zz = m a²/6."""

@@ -19,7 +19,7 @@ setup:
 
 demo: setup
 	@mkdir -p $(dir $(DEMO_OUT))
-	$(PY) -m shoulder_fem.cli bench spinning-bar --level $(LEVEL) --out $(DEMO_OUT)
+	$(PY) -m shoulder_fem.cli bench shoulder-internal-rotation --level $(LEVEL) --out $(DEMO_OUT)
 
 test: setup
 	$(PY) -m pytest -q tests

@@ -1318,9 +1318,7 @@ def _tagged_mesh(
                 # every facet of the volume's cells that touches the cut takes the copy
                 touching = mine & np.any(cell_topo >= copy[0], axis=1)
                 faces = {
-                    tuple(sorted(np.delete(c, i)))
-                    for c in cell_topo[touching]
-                    for i in range(nper)
+                    tuple(sorted(np.delete(c, i))) for c in cell_topo[touching] for i in range(nper)
                 }
                 for j in np.flatnonzero(np.any(np.isin(facet_topo, nodes), axis=1)):
                     moved = remap[facet_topo[j]]

@@ -491,8 +491,10 @@ class Recorder:
         self.solver_stats[key] += int(n)
 
     def set_status(self, status: str, message: str | None = None) -> None:
-        """Set the run's outcome: ``"ok"``, ``"failed"`` or ``"incomplete"`` (stopped early
-        with its completed steps kept), with a one-line reason."""
+        """Set the run's outcome, with a one-line reason.
+
+        ``"ok"``, ``"failed"`` or ``"incomplete"`` (stopped early, its completed steps kept).
+        """
         if status not in STATUSES:
             raise ValueError(f"status must be one of {STATUSES}, not {status!r}")
         self.status = status

@@ -1042,7 +1042,11 @@ class RigidSystem:
         """Run the SNES from the current state (or predictor); leave the state at the solution."""
         x = self._x_from_state()
         self.snes.setConvergenceHistory(length=200, reset=True)
-        self.snes.solve(None, x)
+        petsc_error = None
+        try:
+            self.snes.solve(None, x)
+        except PETSc.Error as err:  # e.g. MUMPS on a matrix with NaN entries
+            petsc_error = f"PETSc error {err.ierr} in the solve (a failed factorization)"
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
         history = [float(v) for v in self.snes.getConvergenceHistory()[0]]
@@ -1051,8 +1055,11 @@ class RigidSystem:
         self.stats.linear_solves += its
         self.stats.history.append(its)
         self.stats.residual_histories.append(history)
-        if reason <= 0 or not math.isfinite(self.snes.getFunctionNorm()):
-            raise ConvergenceError(step, _reason_name(reason), its, self.prefix)
+        if petsc_error or reason <= 0 or not math.isfinite(self.snes.getFunctionNorm()):
+            # A failed factorization must not be reused by the next solve (MUMPS then stops
+            # with INFOG(1) = -3): the next solve factorizes afresh.
+            self.snes.getKSP().getPC().reset()
+            raise ConvergenceError(step, petsc_error or _reason_name(reason), its, self.prefix)
         self._update_state(x)
         if self._fe:
             self._assemble_F()

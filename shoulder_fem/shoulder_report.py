@@ -746,9 +746,18 @@ def _plot_section(runs: dict[str, RunData], path: Path) -> dict[str, int]:
         if len(face):
             vmax = max(vmax, float(face.max()))
     vmax = vmax if vmax > 0 else 1.0
-    fig, axes = plt.subplots(1, len(runs), figsize=(5.2 * len(runs) + 1, 4.6), squeeze=False)
-    coll = None
+    # one panel per run, stacked: the blade's section is long and thin
     bounds = [p for s in sections.values() for p in s[0]]
+    aspect = 0.3
+    if bounds:
+        allp = np.concatenate(bounds)
+        span = np.ptp(allp[:, :2], axis=0)
+        aspect = float(np.clip(span[1] / max(span[0], 1e-9), 0.1, 1.0))
+    fig, axes = plt.subplots(
+        len(runs), 1, figsize=(9.0, len(runs) * (7.0 * aspect + 0.9) + 0.8), squeeze=False
+    )
+    axes = axes.T
+    coll = None
     for ax, (m, (polys, face, z)) in zip(axes[0], sections.items(), strict=True):
         r = runs[m]
         ax.set_title(f"{m}: {_fmt(r.von_mises_angle, 'g')}°, z = {z * 1e3:.1f} mm")

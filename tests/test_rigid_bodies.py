@@ -188,13 +188,20 @@ def _linear_block_with_plate(load: float, linear_ties: bool):
     law = materials.LinearElastic(1e9, 0.3)
     residual = vp.internal_power_linear(law, u, ufl.TestFunction(V), ufl.dx(domain=mesh))
     plate = RigidBody(
-        "plate", (0, 0, 0.04), force=load * np.array([0.2, -0.1, 0.5]),
+        "plate",
+        (0, 0, 0.04),
+        force=load * np.array([0.2, -0.1, 0.5]),
         moment=load * np.array([3e-3, 2e-3, -4e-3]),
     )
     system = RigidSystem(
-        [plate], [], u=u, residual=residual,
+        [plate],
+        [],
+        u=u,
+        residual=residual,
         surfaces={"base": (tags, BASE.id), "top": (tags, TOP.id)},
-        ties=[Tie("plate", "top")], fixed=["base"], linear_ties=linear_ties,
+        ties=[Tie("plate", "top")],
+        fixed=["base"],
+        linear_ties=linear_ties,
         options={"snes_rtol": 1e-12, "snes_atol": 1e-14, "snes_max_it": 5 if linear_ties else 40},
     )
     return system, plate

@@ -563,6 +563,20 @@ class RigidSystem:
         for key in opts:
             db.delValue(f"{self.prefix}{key}")
         self.snes.setConvergenceHistory(length=200, reset=True)
+        self._linesearch = str(opts["snes_linesearch_type"])
+
+    @property
+    def linesearch(self) -> str:
+        """The SNES line search type (``basic``, ``l2``, ``bt``, ``cp``)."""
+        return self._linesearch
+
+    @linesearch.setter
+    def linesearch(self, kind: str) -> None:
+        db = PETSc.Options()
+        db[f"{self.prefix}snes_linesearch_type"] = kind
+        self.snes.setFromOptions()
+        db.delValue(f"{self.prefix}snes_linesearch_type")
+        self._linesearch = kind
 
     @property
     def _inertial(self) -> list[int]:

@@ -1,13 +1,10 @@
-"""The shoulder study end to end at the coarse level (serial), on a shortened rotation.
+"""The shoulder study end to end at the coarse level: both methods from 0 to 60 deg.
 
-Both methods drive the humerus to ``FINAL`` degrees (outputs every ``EVERY`` degrees) instead of
-the scene's 60 deg, to keep the suite short. At the coarse level both methods stop at 50 deg
-(README, "The shoulder study": Newton cycles between two contact states on the way to 55 deg);
-that stop is what ``test_a_stalled_rotation_ends_incomplete_and_keeps_the_angles_reached``
-runs.
-
-Tolerances of the decoupled method against the coupled reference at this level (stated in the
-README): see ``COARSE_TOLERANCES``.
+The module fixture runs the scene as it is (0-60 deg, steps of 5 deg, outputs every 10 deg)
+with both methods and writes the report; the tests check the outputs, the decoupled method
+against the coupled reference (``COARSE_TOLERANCES``, measured values in the README, "The
+shoulder study"), the transfer of part 1's loads to part 2, the scapula's suspension, a stalled
+rotation, and (under ``mpirun -n 2``) parallel against serial on a short rotation.
 """
 
 from __future__ import annotations
@@ -25,9 +22,8 @@ from shoulder_fem import shoulder as SH
 from shoulder_fem.rigid import hat
 from shoulder_fem.scene import load_scene
 
-FINAL, STEP, EVERY = 4.0, 2.0, 2.0
-SETS = [f"final_angle={FINAL}deg", f"angle_step={STEP}deg", f"output_angle={EVERY}deg"]
-#: Decoupled vs coupled at the coarse level on 0-4 deg (measured values in the README).
+FINAL, EVERY = 60.0, 10.0
+#: Decoupled vs coupled at the coarse level, 0-60 deg (measured values in the README).
 COARSE_TOLERANCES = {
     "von_mises_correlation_min": 0.99,
     "von_mises_slope": (0.95, 1.05),
@@ -48,17 +44,14 @@ SERIES = (
 )
 
 
-def _scene(*extra: str):
-    return load_scene("shoulder-internal-rotation").with_overrides(SETS + list(extra))
-
-
 @pytest.fixture(scope="module")
 def study(tmp_path_factory) -> dict:
-    """Both methods on 0-4 deg and their report (serial)."""
+    """Both methods on 0-60 deg and their report."""
     comm = MPI.COMM_WORLD
     base = Path(comm.bcast(str(tmp_path_factory.mktemp("shoulder")), root=0))
+    scene = load_scene("shoulder-internal-rotation")
     results = {
-        m: api.run(_scene(), m, "coarse", base / m, comm=comm) for m in ("coupled", "decoupled")
+        m: api.run(scene, m, "coarse", base / m, comm=comm) for m in ("coupled", "decoupled")
     }
     report = None
     if comm.rank == 0:
@@ -129,7 +122,8 @@ def test_transferred_loads_balance_the_springs_and_part2_factorizes_once(study):
     the recorded pose are in equilibrium (a conservation law of part 1); part 2 reuses one
     factorization for every angle."""
     dec = study["results"]["decoupled"]
-    assert dec.probes["transfer_equilibrium_residual"] < 1e-8
+    # relative to the transferred loads (~10-100 N); Newton stops at |F| < 1e-3 N
+    assert dec.probes["transfer_equilibrium_residual"] < 1e-5
     assert dec.probes["part2_factorizations"] == 1
     _, inertia = _series(dec, "part2_inertia_force")
     _, loads = _series(dec, "part2_transferred_force")
@@ -159,23 +153,24 @@ def test_scapula_suspension_stiffness_is_symmetric_positive_definite():
 
 
 def test_a_stalled_rotation_ends_incomplete_and_keeps_the_angles_reached(comm_tmp):
-    """Asked for 55 deg, part 1 stops at 50 deg (coarse): the failed steps are cut back, then
-    the run ends ``incomplete`` with the angle reached; the outputs up to it are kept (part 2
-    runs on them) and the report states the angle."""
+    """Steps of 10 deg with one cutback allowed: past 10 deg the secant step (10.7 mm of
+    actuation) and its cutback (5.4 mm) invert muscle elements (NaN residual); the run ends
+    ``incomplete`` at 10 deg with a message naming the step and the reason; the outputs up to
+    10 deg are kept (part 2 runs on them) and the report states the angle reached."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(
-        ["final_angle=55deg", "max_cutbacks=2"]
+        ["final_angle=30deg", "angle_step=10deg", "max_actuation_step=16mm", "max_cutbacks=1"]
     )
     out = comm_tmp / "stalled"
     result = api.run(scene, "decoupled", "coarse", out)
     assert result.status == "incomplete"
     reached = result.probes["final_angle_deg"]
-    assert 40.0 <= reached < 55.0
+    assert reached == pytest.approx(10.0, abs=0.011)
     message = result.data["message"]
-    assert "stopped at" in message and "of 55 deg" in message and "cutbacks" in message
-    assert result.probes["failed_steps"] >= 3  # the cutbacks of the last step at least
+    assert "stopped at 10.00 deg of 30 deg" in message, message
+    assert "towards 20.0 deg did not converge after 1 cutbacks" in message, message
+    assert result.probes["failed_steps"] >= 2  # the failed step and its cutback
     x, _ = _series(result, "max_pressure")
-    expected = np.arange(0.0, reached + 0.011, 10.0)
-    assert np.allclose(x, expected), (x, reached)
+    assert np.allclose(x, [0.0, 10.0]), x
     x2, vm = _series(result, "scapula_max_von_mises")  # part 2 on the angles reached
     assert np.allclose(x2, x) and np.all(np.isfinite(vm)) and np.all(vm > 0)
     with np.load(out / "shoulder.npz") as npz:
@@ -213,7 +208,7 @@ def test_two_ranks_give_the_serial_results(method, comm_tmp):
         a = np.asarray(par.data["series"][name]["y"])
         b = np.asarray(ser["series"][name]["y"])
         if name == "transfer_equilibrium_residual":
-            assert np.all(a < 1e-8) and np.all(b < 1e-8)
+            assert np.all(a < 1e-5) and np.all(b < 1e-5)
             continue
         assert np.allclose(a, b, rtol=1e-5, atol=1e-9 * np.abs(b).max()), (name, a, b)
     reached = ser["probes"]["final_angle_deg"]

@@ -1061,6 +1061,8 @@ class RigidSystem:
             self.snes.solve(None, x)
         except PETSc.Error as err:  # e.g. MUMPS on a matrix with NaN entries
             petsc_error = f"PETSc error {err.ierr} in the solve (a failed factorization)"
+        except ArithmeticError as err:  # a diverged iterate, e.g. a rotation vector of 1e80
+            petsc_error = f"{type(err).__name__} in the residual or Jacobian ({err})"
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
         history = [float(v) for v in self.snes.getConvergenceHistory()[0]]

@@ -22,7 +22,8 @@ humeral rotation angle (the twist about the shaft axis of the humerus's best-fit
 rotation) is the progress variable: the displacement d of the origin is found by secant
 iterations for each target angle (every ``angle_step``), outputs are written every
 ``output_angle``. A step whose Newton solve fails is cut back (halved) up to ``max_cutbacks``
-times in a row; then the run stops with status ``incomplete``, keeping the angles reached.
+times in a row (at most 2 x ``max_cutbacks`` failures per target angle); then the run stops
+with status ``incomplete``, keeping the angles reached.
 
 Methods:
 * ``coupled``: one finite-strain problem with every body deformable, one Newton solve per
@@ -490,7 +491,9 @@ def drive_rotation(
     for k in range(1, n_targets + 1):
         target = k * step
         limit = d_max
-        cuts = 0
+        # cutbacks in a row; failures on the way to this target (a short secant step that
+        # converges resets the cutbacks, not the failures: at a wall the run ends all the same)
+        cuts = fails = 0
         for _ in range(30):
             if abs(theta - target) <= tol:
                 break
@@ -525,12 +528,17 @@ def drive_rotation(
                     cuts,
                     max_cut,
                 )
-                if cuts > max_cut:
+                fails += 1
+                if cuts > max_cut or fails > 2 * max_cut:
+                    why = (
+                        f"after {max_cut} cutbacks"
+                        if cuts > max_cut
+                        else f"in {fails} tries (more than 2 x max_cutbacks)"
+                    )
                     msg = (
                         f"{label}: stopped at {math.degrees(theta):.2f} deg of "
                         f"{math.degrees(final):.0f} deg: the step towards "
-                        f"{math.degrees(target):.1f} deg did not converge after {max_cut} "
-                        f"cutbacks ({err.reason})"
+                        f"{math.degrees(target):.1f} deg did not converge {why} ({err.reason})"
                     )
                     return theta, log, msg
                 continue

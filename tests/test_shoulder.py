@@ -27,11 +27,13 @@ from shoulder_fem.scene import load_scene
 
 FINAL, EVERY = 50.0, 10.0
 #: Decoupled vs coupled at the coarse level, 0-50 deg (measured values in the README).
+#: Measured: 1.0000, 1.0028, 1.5 %, 0.31 %; the bounds are the issue's medium-level ones (5 %
+#: for the pressure tightened to 3 %): the coarse level meets them.
 COARSE_TOLERANCES = {
-    "von_mises_correlation_min": 0.99,
-    "von_mises_slope": (0.95, 1.05),
-    "max_pressure_rel_error": 0.05,
-    "muscle_force_rel_error": 0.02,
+    "von_mises_correlation_min": 0.999,
+    "von_mises_slope": (0.98, 1.02),
+    "max_pressure_rel_error": 0.03,
+    "muscle_force_rel_error": 0.01,
 }
 SERIES = (
     "humeral_angle",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import logging
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,10 @@ def comm_tmp(tmp_path: Path) -> Path:
 
 @pytest.fixture(autouse=True)
 def _collective_teardown():
+    root, package = logging.getLogger(), logging.getLogger("shoulder_fem")
+    saved = (root.handlers[:], package.handlers[:], package.level, package.propagate)
     yield
+    # a CLI test's handlers write to that test's captured stderr, closed after it
+    root.handlers[:], package.handlers[:], package.level, package.propagate = saved
     gc.collect()
     MPI.COMM_WORLD.Barrier()

@@ -899,7 +899,13 @@ class Contact:
         return q, n, g, m.index[t_id], bary, on
 
     def _ensure(self) -> None:
-        if self._last_u is None or not np.array_equal(self._last_u, self.u.x.array):
+        """Evaluate if ``u`` changed on any rank (collective).
+
+        A rank whose part of ``u`` did not change must still join the others' evaluation (its
+        gathers), or they wait for it forever.
+        """
+        changed = self._last_u is None or not np.array_equal(self._last_u, self.u.x.array)
+        if self.comm.allreduce(changed, op=MPI.LOR):
             self.evaluate()
 
     # -- node coefficients of the active points ---------------------------------------------

@@ -762,6 +762,28 @@ def _cauchy(bone, u) -> ufl.core.expr.Expr:
     return bone.first_piola(Fg) * Fg.T / ufl.det(Fg)
 
 
+def _record_von_mises(recorder, stress_vm: VonMises, x: float, data: dict, comm) -> None:
+    """Record the scapula's von Mises stress at output angle ``x`` (deg) (collective).
+
+    Its maximum as a series point, its nodal values in ``data`` (the last output's are saved).
+    """
+    field_vm = stress_vm.update()
+    local = float(field_vm.x.array.max()) if len(field_vm.x.array) else 0.0
+    recorder.add_series_point(
+        "scapula_max_von_mises", x, comm.allreduce(local, op=MPI.MAX), "deg", "Pa"
+    )
+    data["von_mises"] = stress_vm.nodal(comm)
+    data["von_mises_angle_deg"] = x
+
+
+def _count_solves(recorder, stats, steps: int) -> None:
+    """Add a :class:`RigidSystem`'s solver counters (its ``stats``) and ``steps`` to the run's."""
+    recorder.count("steps", steps)
+    recorder.count("newton_iterations", stats.newton_iterations)
+    recorder.count("linear_solves", stats.linear_solves)
+    recorder.count("factorizations", stats.factorizations)
+
+
 def _run_steps(
     model,
     recorder,
@@ -816,18 +838,7 @@ def _run_steps(
         if on_output_extra is not None:
             on_output_extra(target)
         if stress_vm is not None:
-            field_vm = stress_vm.update()
-            recorder.add_series_point(
-                "scapula_max_von_mises",
-                x,
-                comm.allreduce(
-                    float(field_vm.x.array.max()) if len(field_vm.x.array) else 0.0, op=MPI.MAX
-                ),
-                "deg",
-                "Pa",
-            )
-            data["von_mises"] = stress_vm.nodal(comm)
-            data["von_mises_angle_deg"] = x
+            _record_von_mises(recorder, stress_vm, x, data, comm)
         u1.interpolate(u)
         writer.write_function(u1, x)
         logger.info(
@@ -848,10 +859,7 @@ def _run_steps(
     recorder.set_probe("failed_steps", log.failed_steps, "1")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
-    recorder.count("steps", log.steps)
-    recorder.count("newton_iterations", system.stats.newton_iterations)
-    recorder.count("linear_solves", system.stats.linear_solves)
-    recorder.count("factorizations", system.stats.factorizations)
+    _count_solves(recorder, system.stats, log.steps)
     recorder.count("cutbacks", log.failed_steps)
     if stop is not None:
         recorder.set_status("incomplete", stop)
@@ -1194,18 +1202,7 @@ def _part2(model, recorder, fields_dir, transfer, points, layout, ref, options, 
         recorder.add_series_point(
             "part2_transferred_force", x, float(np.linalg.norm(f, axis=1).sum()), "deg", "N"
         )
-        field_vm = stress_vm.update()
-        recorder.add_series_point(
-            "scapula_max_von_mises",
-            x,
-            comm.allreduce(
-                float(field_vm.x.array.max()) if len(field_vm.x.array) else 0.0, op=MPI.MAX
-            ),
-            "deg",
-            "Pa",
-        )
-        data["von_mises"] = stress_vm.nodal(comm)
-        data["von_mises_angle_deg"] = x
+        _record_von_mises(recorder, stress_vm, x, data, comm)
         u1.interpolate(u)
         writer.write_function(u1, x)
         u_prev.x.array[:] = u.x.array
@@ -1213,10 +1210,7 @@ def _part2(model, recorder, fields_dir, transfer, points, layout, ref, options, 
     recorder.set_probe("transfer_equilibrium_residual", worst, "1")
     recorder.set_probe("part2_factorizations", system.stats.factorizations, "1")
     recorder.set_probe("part2_iterations", iterations, "1")
-    recorder.count("steps", len(angles))
-    recorder.count("newton_iterations", system.stats.newton_iterations)
-    recorder.count("linear_solves", system.stats.linear_solves)
-    recorder.count("factorizations", system.stats.factorizations)
+    _count_solves(recorder, system.stats, len(angles))
     recorder.extra("dofs_part2", V.dofmap.index_map.size_global * 3)
     system.destroy()
     return stress_vm, mesh, ft

@@ -125,10 +125,6 @@ SNES_OPTIONS = {
 FALLBACK_LINESEARCH = "l2"
 
 
-class RunStopped(RuntimeError):
-    """The rotation could not be continued (every cutback failed)."""
-
-
 # ---- model ----------------------------------------------------------------------------------
 
 

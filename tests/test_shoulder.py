@@ -81,10 +81,12 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
             assert np.all(np.isfinite(y)), (method, name, y)
         # the measured humeral angle is the target within the scene's tolerance (0.01 deg),
         # except at 0 deg: the initial seating of the faceted cartilages turns it a little
+        # (measured 0.13 deg at coarse)
         x, y = _series(result, "humeral_angle")
         assert np.allclose(y[1:], x[1:], atol=0.011), (method, y)
         assert abs(y[0]) < 0.5
-        # the subscapularis pulls harder as the humerus turns; the contact is loaded
+        # the subscapularis pulls harder as the humerus turns (0.4 -> 25.7 N measured over
+        # 0-50 deg; 0.5 N is a floor, not a fit); the contact is loaded
         _, fsub = _series(result, "subscapularis_force")
         assert np.all(np.diff(fsub) > 0) and fsub[-1] > 0.5, fsub
         _, pmax = _series(result, "max_pressure")

@@ -88,6 +88,22 @@ VOLUMES = (
     INFRASPINATUS,
 )
 BONES = (HUMERUS, SCAPULA)
+#: Muscle-bone contact: the humerus's free bone surface around the head (facet centroids within
+#: ``HEAD_REGION_FACTOR`` x the articular radius of the articular centre) is the sliding master
+#: of the muscles. ``rigid-bone`` keeps the humerus cells on it (this tag; not in
+#: :data:`VOLUMES`), whose nodes the rigid humerus carries, so that the surface is made of
+#: facets of the soft-tissue mesh in both variants, node for node the same.
+HUMERUS_HEAD_LAYER = Marker("humerus_head_layer", 8, 3)
+#: The facets of that master (a tag value given by :func:`head_surface_tags`, not by gmsh).
+HUMERUS_HEAD_SURFACE = Marker("humerus_head_surface", 143, 2)
+#: The deep faces of the muscles over the head (slave of the muscle-bone contact), given by
+#: :func:`head_surface_tags`: free muscle facets within the head region whose outward normal
+#: is within acos(_DEEP_COSINE) of the direction to the articular centre.
+MUSCLE_DEEP_SURFACE = Marker("muscle_deep_surface", 144, 2)
+_DEEP_COSINE = 0.3
+#: Reach of the head region, in articular radii: the head, the tuberosities and the rotator
+#: cuff over them (the muscles are 8 mm thick on a 24 mm head).
+HEAD_REGION_FACTOR = 1.6
 SOFT = tuple(v for v in VOLUMES if v not in BONES)
 
 
@@ -1179,7 +1195,12 @@ class ShoulderMesh:
 
 
 def model_to_dolfinx(
-    comm: MPI.Comm, info: dict | None, variant: str, rank: int = 0, detach: tuple = ()
+    comm: MPI.Comm,
+    info: dict | None,
+    variant: str,
+    rank: int = 0,
+    detach: tuple = (),
+    head_layer: bool = False,
 ):
     """Turn the meshed gmsh model (on ``rank``) into dolfinx meshes with tags, scaled to metres.
 
@@ -1194,6 +1215,8 @@ def model_to_dolfinx(
             surface's nodes (the surface tag then marks the volume's side). E.g.
             ``(("subscapularis_origin", "subscapularis"),)`` frees a muscle's origin from the
             bone so that it can be displaced.
+        head_layer: ``rigid-bone`` only: keep the humerus cells under the head's free surface
+            (:data:`HUMERUS_HEAD_LAYER`), for muscle-bone contact on a rigid humerus.
 
     Returns:
         (mesh, cell_tags, facet_tags, bone_surface, bone_surface_tags); the last two are None for
@@ -1241,7 +1264,13 @@ def model_to_dolfinx(
     soft_facets = (
         {m.id: info["surfaces"][m.name] for m in SOFT_SURFACES} if comm.rank == rank else None
     )
-    mesh, ct, ft = _tagged_mesh(comm, rank, 3, soft_cells, soft_facets)
+    layer = None
+    if head_layer and comm.rank == rank:
+        # the humerus cells on the head's free surface (see HUMERUS_HEAD_LAYER) and that surface
+        soft_facets[MARKERS["humerus_surface"].id] = info["surfaces"]["humerus_surface"]
+        reach = HEAD_REGION_FACTOR * info["geometry"].articular_radius * _MM
+        layer = (HUMERUS_HEAD_LAYER.id, _head_layer_elements(info, reach))
+    mesh, ct, ft = _tagged_mesh(comm, rank, 3, soft_cells, soft_facets, extra_cells=layer)
     bone_cells = (
         {m.id: info["surfaces"][m.name] for m in RIGID_BONE_SURFACES} if comm.rank == rank else None
     )
@@ -1256,6 +1285,7 @@ def _tagged_mesh(
     cells: dict | None,
     facets: dict | None,
     split: tuple = (),
+    extra_cells: tuple | None = None,
 ):
     """A dolfinx mesh (m) of the gmsh elements on the given entities, with cell and facet tags.
 
@@ -1267,6 +1297,8 @@ def _tagged_mesh(
         facets: on ``rank``: tag value -> gmsh entities of dimension ``tdim - 1`` (or None).
         split: ``(facet tag, cell tag)`` pairs: the nodes of those facets are duplicated for
             the cells of that tag (the interface is cut open; the facets keep the copy).
+        extra_cells: on ``rank``: ``(tag value, gmsh node tags (n, tdim + 1))``, cells given
+            element by element (or None).
     """
     import dolfinx
     import gmsh
@@ -1296,6 +1328,10 @@ def _tagged_mesh(
             return np.vstack(topo), np.concatenate(vals)
 
         cell_topo, cell_vals = collect(cells, tdim, gmsh_cell, nper)
+        if extra_cells is not None:
+            value, elements = extra_cells
+            cell_topo = np.vstack([cell_topo, lookup[np.asarray(elements, dtype=np.int64)]])
+            cell_vals = np.concatenate([cell_vals, np.full(len(elements), value, np.int32)])
         used, cell_topo = np.unique(cell_topo, return_inverse=True)
         cell_topo = cell_topo.reshape(-1, nper)
         x = coords[used] / _MM
@@ -1351,6 +1387,89 @@ def _tagged_mesh(
     return mesh, ct, ft
 
 
+def _head_layer_elements(info: dict, radius_mm: float) -> np.ndarray:
+    """Node tags (gmsh, (n, 4)) of the humerus tetrahedra on its free surface near the head.
+
+    The surface triangles are those of ``humerus_surface`` whose centroid lies within
+    ``radius_mm`` of the articular centre (the origin); the cells, every humerus tetrahedron
+    with a node on them (gmsh rank only).
+    """
+    import gmsh
+
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    xyz = np.zeros((int(node_tags.max()) + 1, 3))
+    xyz[node_tags.astype(np.int64)] = coords.reshape(-1, 3)
+    on = []
+    for ent in info["surfaces"]["humerus_surface"]:
+        types, _, nodes = gmsh.model.mesh.getElements(2, ent)
+        for t, n in zip(types, nodes, strict=True):
+            if t == 2:
+                tri = np.asarray(n, dtype=np.int64).reshape(-1, 3)
+                near = np.linalg.norm(xyz[tri].mean(axis=1), axis=1) < radius_mm
+                on.append(tri[near].ravel())
+    on = np.unique(np.concatenate(on)) if on else np.zeros(0, dtype=np.int64)
+    cells = []
+    for ent in info["volumes"][HUMERUS.name]:
+        types, _, nodes = gmsh.model.mesh.getElements(3, ent)
+        for t, n in zip(types, nodes, strict=True):
+            if t == 4:
+                tet = np.asarray(n, dtype=np.int64).reshape(-1, 4)
+                cells.append(tet[np.isin(tet, on).any(axis=1)])
+    return np.vstack(cells) if cells else np.zeros((0, 4), dtype=np.int64)
+
+
+def _outward_normals(mesh, facets: np.ndarray) -> np.ndarray:
+    """Unit outward normals of boundary facets (straight simplices, reference positions)."""
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    f2c = mesh.topology.connectivity(tdim - 1, tdim)
+    f2v = mesh.topology.connectivity(tdim - 1, 0)
+    c2v = mesh.topology.connectivity(tdim, 0)
+    geo = mesh.geometry.dofmap
+    x = mesh.geometry.x
+    out = np.zeros((len(facets), 3))
+    for k, f in enumerate(facets):
+        cell = f2c.links(f)[0]
+        cv, fv = c2v.links(cell), f2v.links(f)
+        pts = x[geo.links(cell)]  # straight P1 geometry: vertex order of the cell
+        a, b, c = (pts[np.flatnonzero(cv == v)[0]] for v in fv)
+        inner = pts[np.flatnonzero(~np.isin(cv, fv))[0]]
+        n = np.cross(b - a, c - a)
+        out[k] = -n if np.dot(n, inner - a) > 0 else n
+    return out / np.linalg.norm(out, axis=1)[:, None]
+
+
+def head_surface_tags(mesh, facet_tags, radius: float):
+    """Facet tags with the surfaces of muscle-bone contact on the head re-tagged (collective).
+
+    The ``humerus_surface`` facets whose centroid lies within ``radius`` (m) of the articular
+    centre (the origin) take the value of :data:`HUMERUS_HEAD_SURFACE`; the free muscle facets
+    within that reach whose outward normal points towards the centre (the muscles' deep
+    faces, which wrap the head) take :data:`MUSCLE_DEEP_SURFACE`; the rest is kept. The
+    superficial faces of a muscle would otherwise see the head through the muscle.
+    """
+    import dolfinx
+
+    fdim = mesh.topology.dim - 1
+    mesh.topology.create_connectivity(fdim, 0)
+    mesh.topology.create_connectivity(fdim + 1, 0)
+    idx, vals = facet_tags.indices.copy(), facet_tags.values.copy()
+    cand = np.flatnonzero(vals == MARKERS["humerus_surface"].id)
+    if len(cand):
+        x = dolfinx.mesh.compute_midpoints(mesh, fdim, idx[cand].astype(np.int32))
+        vals[cand[np.linalg.norm(x, axis=1) < radius]] = HUMERUS_HEAD_SURFACE.id
+    free = np.flatnonzero(np.isin(vals, [MARKERS[f"{m}_surface"].id for m in MUSCLES]))
+    if len(free):
+        x = dolfinx.mesh.compute_midpoints(mesh, fdim, idx[free].astype(np.int32))
+        r = np.linalg.norm(x, axis=1)
+        n = _outward_normals(mesh, idx[free])
+        deep = (r < radius) & (np.einsum("fi,fi->f", n, -x) > _DEEP_COSINE * r)
+        vals[free[deep]] = MUSCLE_DEEP_SURFACE.id
+    tags = dolfinx.mesh.meshtags(mesh, fdim, idx, vals)
+    tags.name = facet_tags.name
+    return tags
+
+
 def build_shoulder_mesh(
     comm: MPI.Comm,
     geometry: ShoulderGeometry,
@@ -1358,6 +1477,7 @@ def build_shoulder_mesh(
     variant: str | tuple[str, ...] = "deformable",
     rank: int = 0,
     detach: tuple = (),
+    head_layer: bool = False,
 ) -> ShoulderMesh | dict[str, ShoulderMesh]:
     """Build the gmsh model on ``rank`` and return the dolfinx mesh with tags (collective).
 
@@ -1374,6 +1494,8 @@ def build_shoulder_mesh(
             the same points on shared surfaces).
         rank: rank that runs gmsh.
         detach: bonded ``(surface, volume)`` pairs cut open in the ``deformable`` variant
+            (:func:`model_to_dolfinx`).
+        head_layer: ``rigid-bone``: keep the humerus cells under the head's free surface
             (:func:`model_to_dolfinx`).
     """
     import gmsh
@@ -1411,7 +1533,7 @@ def build_shoulder_mesh(
             gmsh.finalize()
         raise ValueError(error)
     try:
-        built = {v: model_to_dolfinx(comm, info, v, rank, detach) for v in variants}
+        built = {v: model_to_dolfinx(comm, info, v, rank, detach, head_layer) for v in variants}
         summary = None
         if comm.rank == rank:
             summary = {

@@ -53,6 +53,7 @@ displacement block of a mixed (Taylor-Hood) space.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -180,6 +181,16 @@ class ContactPair:
         friction: Coulomb coefficient mu (0: frictionless).
         slip_regularization: Regularisation slip e_s of the friction law (m).
         candidates: Master triangles tested exactly per slave point (nearest centroids).
+        search_depth: Against a mesh master, the largest penetration (m) still taken as
+            contact; a point deeper than this is paired with the far side of a thick or
+            curved master (or a slave face looking away from it: the outer face of a muscle
+            over a bone) and carries no pressure. Keep it well above the penetrations the
+            penalty allows and below the thickness of the slave body.
+        smoothing: Penalty only: half width s (m) of a C1 transition of the pressure law
+            around g = 0, p = eps (s - g)^2 / (4 s) for |g| < s (p = eps <-g> outside). A point
+            that crosses g = 0 then changes the pressure and the tangent gradually: where many
+            points graze a sliding faceted surface, Newton no longer cycles between active
+            sets. 0: the plain penalty law.
     """
 
     name: str
@@ -191,6 +202,8 @@ class ContactPair:
     friction: float = 0.0
     slip_regularization: float = 1e-6
     candidates: int = 12
+    search_depth: float = math.inf
+    smoothing: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "slave", tuple(int(t) for t in np.atleast_1d(self.slave)))
@@ -209,8 +222,30 @@ class ContactPair:
             raise ContactError(
                 f"{where}: slip_regularization = {self.slip_regularization!r} m, must be > 0"
             )
+        if not self.smoothing >= 0 or (self.smoothing > 0 and self.method != "penalty"):
+            raise ContactError(
+                f"{where}: smoothing = {self.smoothing!r} m, must be >= 0 (penalty method only)"
+            )
+        if not self.search_depth > 0:
+            raise ContactError(f"{where}: search_depth = {self.search_depth!r} m, must be > 0")
         if not isinstance(self.master, (Plane, Sphere, MeshSurface)):
             raise ContactError(f"{where}: unknown master type {type(self.master).__name__}")
+
+
+def penalty_law(depth: np.ndarray, penalty: float, smoothing: float = 0.0):
+    """Pressure (Pa) and its derivative dp/d(depth) (Pa/m) at penetrations ``depth`` (m).
+
+    ``penalty`` <depth> for ``smoothing`` = 0; otherwise the C1 law of
+    :attr:`ContactPair.smoothing` (equal to it beyond ``smoothing`` on either side).
+    """
+    d = np.asarray(depth, dtype=float)
+    if smoothing == 0.0:
+        return penalty * np.maximum(d, 0.0), np.where(d > 0, penalty, 0.0)
+    s = smoothing
+    mid = np.clip(d + s, 0.0, 2 * s)
+    p = np.where(d > s, penalty * d, penalty * mid**2 / (4 * s))
+    k = np.where(d > s, penalty, penalty * mid / (2 * s))
+    return p, k
 
 
 @dataclass
@@ -836,12 +871,15 @@ class Contact:
             else:
                 xm, n, g, m_idx, bary, on = self._project_mesh(pair, master, xq)
             dxm = np.einsum("qk,qki->qi", bary, master.x[m_idx] - master.x_prev[m_idx])
+            on &= g >= -pair.search_depth
         lam = np.einsum("qa,qa->q", pts["N1"], self._lam[i][f]) if len(f) else np.zeros(0)
         if pair.method == "augmented":
             p = np.maximum(lam - pair.penalty * g, 0.0)
+            k = np.where(p > 0, pair.penalty, 0.0)
         else:
-            p = np.maximum(-pair.penalty * g, 0.0)
+            p, k = penalty_law(-g, pair.penalty, pair.smoothing)
         p = np.where(on, p, 0.0)
+        k = np.where(on, k, 0.0)
         active = p > 0
         t = np.zeros_like(xq)
         s = np.zeros_like(xq)
@@ -860,6 +898,7 @@ class Contact:
             n=n,
             g=g,
             p=p,
+            k=k,
             t=t,
             s=s,
             active=active,
@@ -949,9 +988,9 @@ class Contact:
             act, node_rows, coef = self._couplings(i)
             if len(act) == 0:
                 continue
-            n, p, W = st["n"][act], st["p"][act], st["W"][act]
+            n, p, W, kn = st["n"][act], st["p"][act], st["W"][act], st["k"][act]
             nn = np.einsum("qi,qj->qij", n, n)
-            D = pair.penalty * nn
+            D = kn[:, None, None] * nn
             if pair.friction > 0:
                 s = st["s"][act]
                 root = np.sqrt(np.einsum("qi,qi->q", s, s) + pair.slip_regularization**2)
@@ -960,7 +999,7 @@ class Contact:
                 dts = -(mu * p / root)[:, None, None] * (
                     eye[None] - np.einsum("qi,qj->qij", s, s) / (root**2)[:, None, None]
                 )
-                D = D - mu * pair.penalty * np.einsum("qi,qj->qij", s / root[:, None], n)
+                D = D - mu * np.einsum("q,qi,qj->qij", kn, s / root[:, None], n)
                 D = D - np.einsum("qij,qjk->qik", dts, tang)
             blk = np.einsum("qa,qb,qij->qaibj", coef, coef, D)
             if st["dndx"] is not None:  # analytic master: rotation of the normal (slave only)

@@ -385,7 +385,8 @@ class RigidSystem:
         u: Displacement of the deformable body (m), a 3D vector Lagrange function; ``None`` for
             a system of rigid bodies and springs only.
         residual: UFL residual F(u; w) of the deformable body (N), required with ``u``.
-        surfaces: Named surfaces: ``{name: (facet MeshTags, tag id)}``.
+        surfaces: Named surfaces: ``{name: (facet MeshTags, tag id)}``; cell tags name a
+            region whose every node is tied (a block of cells carried by a body).
         ties: Which surface follows which body.
         fixed: Names of surfaces whose nodes are fixed (zero displacement).
         jacobian: UFL tangent of ``residual``; ``ufl.derivative`` if omitted.
@@ -483,11 +484,10 @@ class RigidSystem:
             self._n_owned = imap.size_local
             n_all = self._n_owned + imap.num_ghosts
             self._X = V.tabulate_dof_coordinates()[:n_all]
-            fdim = V.mesh.topology.dim - 1
 
             def nodes_of(surface: str) -> np.ndarray:
                 tags, tag = surfaces[surface]
-                dofs = dolfinx.fem.locate_dofs_topological(V, fdim, tags.find(tag))
+                dofs = dolfinx.fem.locate_dofs_topological(V, tags.dim, tags.find(tag))
                 return _owned_flags(imap, dofs, comm)
 
             taken = np.zeros(n_all, dtype=bool)

@@ -151,7 +151,10 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     sizes = scene.level(level)
     variants = ("deformable",) if method == "coupled" else ("rigid-bone", "scapula")
     # the subscapularis origin is the actuator: cut it free of the scapula
-    meshes = S.build_shoulder_mesh(comm, geometry, sizes, variants, detach=DETACHED)
+    wrap = _muscle_contact(values)
+    meshes = S.build_shoulder_mesh(
+        comm, geometry, sizes, variants, detach=DETACHED, head_layer=wrap
+    )
     lay = S._layout(geometry)
     s_dir = lay.rot @ S._shaft_axis(geometry)[0]
     axis = -s_dir / np.linalg.norm(s_dir)
@@ -619,18 +622,40 @@ def _surfaces(facet_tags, names) -> dict:
     return {n: (facet_tags, S.MARKERS[n].id) for n in names}
 
 
+def _head_tags(model: ShoulderModel, mesh, facet_tags):
+    """The facet tags with the muscles' sliding master on the humeral head (collective)."""
+    reach = S.HEAD_REGION_FACTOR * model.geometry.articular_radius
+    return S.head_surface_tags(mesh, facet_tags, reach)
+
+
+def _muscle_contact(values: dict) -> bool:
+    """Whether the rotator cuff slides on the humeral head (``muscle_contact``)."""
+    return values["muscle_contact"] == "humeral-head"
+
+
 def _contact(V, u, facet_tags, values: dict) -> Contact:
-    pair = ContactPair(
-        "glenohumeral",
-        slave=(S.MARKERS["glenoid_articular"].id,),
-        master=MeshSurface((S.MARKERS["humeral_articular"].id,)),
-        penalty=values["contact_penalty"],
-    )
+    """Glenohumeral contact; muscle-bone contact of the rotator cuff on the humeral head."""
+    pairs = [
+        ContactPair(
+            "glenohumeral",
+            slave=(S.MARKERS["glenoid_articular"].id,),
+            master=MeshSurface((S.MARKERS["humeral_articular"].id,)),
+            penalty=values["contact_penalty"],
+        ),
+        ContactPair(
+            "muscle_humerus",
+            slave=(S.MUSCLE_DEEP_SURFACE.id,),
+            master=MeshSurface((S.HUMERUS_HEAD_SURFACE.id,)),
+            penalty=values["muscle_contact_penalty"],
+            search_depth=values["muscle_contact_depth"],
+            smoothing=values["muscle_contact_smoothing"],
+        ),
+    ][: 2 if _muscle_contact(values) else 1]
     return Contact(
         V,
         u,
         facet_tags,
-        [pair],
+        pairs,
         quadrature_degree=int(values["contact_quadrature"]),
         slave_integration="element",
         mesh_integration=MESH_INTEGRATION,
@@ -654,7 +679,8 @@ def run_coupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, optio
     """Method #1: every body deformable, finite strain (collective)."""
     v = model.values
     sm = model.meshes["deformable"]
-    mesh, ct_, ft = sm.mesh, sm.cell_tags, sm.facet_tags
+    mesh, ct_ = sm.mesh, sm.cell_tags
+    ft = _head_tags(model, mesh, sm.facet_tags)
     comm = mesh.comm
     V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
     u = dolfinx.fem.Function(V, name="displacement")
@@ -812,7 +838,8 @@ def _run_steps(
         data["angles_deg"].append(round(math.degrees(target), 6))
         data["glenoid_pressure"].append(p)
         data["glenoid_shear"].append(t)
-        res = contact.resultants()["glenohumeral"]
+        both = contact.resultants()
+        res, wrap = both["glenohumeral"], both.get("muscle_humerus")
         x = math.degrees(target)
         recorder.add_series_point("humeral_angle", x, deg, "deg", "deg")
         recorder.add_series_point("max_pressure", x, float(p.max()) if len(p) else 0.0, "deg", "Pa")
@@ -821,6 +848,13 @@ def _run_steps(
             "contact_force", x, float(np.linalg.norm(res["force"])), "deg", "N"
         )
         recorder.add_series_point("contact_area", x, float(res["area"]), "deg", "m^2")
+        if wrap is not None:  # the rotator cuff on the humeral head: force, deepest overlap
+            recorder.add_series_point(
+                "muscle_bone_contact_force", x, float(np.linalg.norm(wrap["force"])), "deg", "N"
+            )
+            recorder.add_series_point(
+                "muscle_bone_penetration", x, float(wrap["max_penetration"]), "deg", "m"
+            )
         forces = probe.muscle_forces()
         for m, f in forces.items():
             recorder.add_series_point(f"{m}_force", x, float(np.linalg.norm(f)), "deg", "N")
@@ -937,7 +971,8 @@ def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, opt
     """Method #2: part 1 (rigid bones), then part 2 (scapula, linear, floating frame)."""
     v = model.values
     sm = model.meshes["rigid-bone"]
-    mesh, ct_, ft = sm.mesh, sm.cell_tags, sm.facet_tags
+    mesh, ct_ = sm.mesh, sm.cell_tags
+    ft = _head_tags(model, mesh, sm.facet_tags)
     comm = mesh.comm
     V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
     u = dolfinx.fem.Function(V, name="displacement")
@@ -976,12 +1011,17 @@ def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, opt
     ]
     ties += [Tie("scapula", n) for n in SCAPULA_LOAD_SURFACES]
     ties.append(Tie("actuator", "subscapularis_origin"))
+    surfaces = _surfaces(ft, [t.surface for t in ties])
+    if _muscle_contact(v):
+        # the humerus cells under the muscles' sliding master: carried whole by the humerus
+        surfaces[S.HUMERUS_HEAD_LAYER.name] = (ct_, S.HUMERUS_HEAD_LAYER.id)
+        ties.append(Tie("humerus", S.HUMERUS_HEAD_LAYER.name))
     system = RigidSystem(
         [humerus, scapula, actuator],
         springs,
         u=u,
         residual=F,
-        surfaces=_surfaces(ft, [t.surface for t in ties]),
+        surfaces=surfaces,
         ties=ties,
         name="shoulder_part1",
         options=SNES_OPTIONS | dict(options or {}),

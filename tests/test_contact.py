@@ -21,6 +21,7 @@ from shoulder_fem.contact import (
     MeshSurface,
     Plane,
     Sphere,
+    penalty_law,
 )
 from shoulder_fem.forms import contact as fc
 from shoulder_fem.forms import materials
@@ -271,8 +272,9 @@ class TwoBlocks:
         h_lower=0.2,
         penalty=None,
         degree=1,
+        search_depth=math.inf,
     ):
-        self.mesh, _, self.ft = cb.build_two_blocks(
+        self.mesh, self.ct, self.ft = cb.build_two_blocks(
             MPI.COMM_WORLD, lower, upper, h_lower, h_upper, offset=offset
         )
         self.H = lower[2] + upper[2]
@@ -299,7 +301,11 @@ class TwoBlocks:
         self.top_x = bcs[4][1] if drag else None
         self.bcs = [b[0] for b in bcs]
         pair = ContactPair(
-            "interface", (cb.UPPER_BOTTOM.id,), MeshSurface((cb.LOWER_TOP.id,)), self.eps
+            "interface",
+            (cb.UPPER_BOTTOM.id,),
+            MeshSurface((cb.LOWER_TOP.id,)),
+            self.eps,
+            search_depth=search_depth,
         )
         self.contact = Contact(V, self.u, self.ft, [pair], bcs=self.bcs, quadrature_degree=0)
         self.solver = NonlinearSolver(
@@ -401,6 +407,48 @@ def test_friction_block_dragged_needs_mu_n():
 
 
 # ---- robustness --------------------------------------------------------------------------------
+@pytest.mark.mpi
+def test_search_depth_bounds_the_overlap_taken_as_contact():
+    """The upper block moved rigidly 1 mm into the lower one: every contact point is 1 mm deep,
+    so the pressure is ε x 1 mm on the whole unit interface (hand calculation) while the
+    search depth exceeds 1 mm, and nothing once it is below (a far-side pairing)."""
+    delta = 1e-3
+    found = {}
+    for depth in (2 * delta, 0.5 * delta):
+        tb = TwoBlocks(search_depth=depth)
+        upper = dolfinx.fem.locate_dofs_topological(tb.V, 3, tb.ct.find(cb.UPPER.id))
+        tb.u.x.array.reshape(-1, 3)[upper, 2] = -delta
+        found[depth] = tb.contact.resultants()["interface"]
+    deep, shallow = found[2 * delta], found[0.5 * delta]
+    assert deep["area"] == pytest.approx(1.0, rel=1e-12)
+    assert deep["force"][2] == pytest.approx(tb.eps * delta, rel=1e-9)
+    assert deep["max_penetration"] == pytest.approx(delta, rel=1e-9)
+    assert shallow["active_points"] == 0
+    assert np.all(shallow["force"] == 0.0)
+    with pytest.raises(ContactError, match="search_depth"):
+        ContactPair("p", (1,), MeshSurface((2,)), 1.0, search_depth=0.0)
+
+
+def test_smoothed_penalty_law_by_hand():
+    """The C1 penalty law (ε = 2, s = 1): zero below -s, ε (d + s)²/(4 s) within, ε d above;
+    values and slopes by hand, and the slope is the derivative (central differences)."""
+    d = np.array([-2.0, -1.0, 0.0, 0.5, 1.0, 3.0])
+    p, k = penalty_law(d, 2.0, 1.0)
+    assert np.allclose(p, [0.0, 0.0, 0.5, 1.125, 2.0, 6.0], rtol=0, atol=1e-15)
+    assert np.allclose(k, [0.0, 0.0, 1.0, 1.5, 2.0, 2.0], rtol=0, atol=1e-15)
+    x = np.linspace(-1.5, 1.5, 61)
+    h = 1e-6
+    fd = (penalty_law(x + h, 2.0, 1.0)[0] - penalty_law(x - h, 2.0, 1.0)[0]) / (2 * h)
+    assert np.allclose(fd, penalty_law(x, 2.0, 1.0)[1], atol=1e-6)
+    plain = penalty_law(d, 2.0)
+    assert np.array_equal(plain[0], 2.0 * np.maximum(d, 0)) and np.array_equal(
+        plain[1], np.where(d > 0, 2.0, 0.0)
+    )
+    with pytest.raises(ContactError, match="smoothing"):
+        ContactPair("p", (1,), MeshSurface((2,)), 1.0, method="augmented", smoothing=1e-3)
+
+
+@pytest.mark.mpi
 def test_bad_contact_input():
     """Unknown tags, interior facets, bad penalties, hexahedra: clear errors before any solve."""
     mesh, ft, V = _column((2, 2, 2))

@@ -274,3 +274,52 @@ def test_bad_input_is_named_before_any_solve():
         RigidSystem([plate], [off], ties=[Tie("plate", "top")], **common)
     with pytest.raises(ValueError, match="spring 'bad': stiffness"):
         Spring("bad", "plate", (0, 0, 0), GROUND, (1, 0, 0), -1.0)
+
+
+def test_cell_region_tie_carries_every_node_of_its_cells():
+    """A tie named by cell tags ties every node of those cells (vertices, P2 mid-edge nodes,
+    nodes inside the block): the upper half of a P2 block follows a prescribed plate turned
+    by 0.3 rad exactly, u = t + (R - I)(X - X_ref) (the tie kinematics), while the lower half
+    deforms between it and the fixed base."""
+    import dolfinx
+
+    from shoulder_fem.forms import materials
+    from shoulder_fem.forms import virtual_power as vp
+    from shoulder_fem.meshes.block import BASE, build_block
+
+    mesh, _, tags = build_block(MPI.COMM_WORLD, 0.01, 0.04, 2, 4)
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+    u = dolfinx.fem.Function(V)
+    tdim = mesh.topology.dim
+    n_cells = mesh.topology.index_map(tdim).size_local + mesh.topology.index_map(tdim).num_ghosts
+    cells = np.arange(n_cells, dtype=np.int32)
+    upper = cells[dolfinx.mesh.compute_midpoints(mesh, tdim, cells)[:, 2] > 0.02]
+    region = dolfinx.mesh.meshtags(mesh, tdim, upper, np.full(len(upper), 9, dtype=np.int32))
+    law = materials.SaintVenantKirchhoff(1e6, 0.3)
+    dx = ufl.dx(domain=mesh, metadata={"quadrature_degree": 4})
+    residual = vp.internal_power_finite(law, u, ufl.TestFunction(V), dx)
+    ref = np.array([0.0, 0.0, 0.04])
+    plate = RigidBody("plate", ref, prescribed=True)
+    system = RigidSystem(
+        [plate],
+        [],
+        u=u,
+        residual=residual,
+        surfaces={"base": (tags, BASE.id), "upper": (region, 9)},
+        ties=[Tie("plate", "upper")],
+        fixed=["base"],
+        options={"snes_atol": 1e-10, "snes_rtol": 1e-10},
+    )
+    t, R = np.array([1e-3, -5e-4, 2e-3]), rotation_about([0.0, 0.0, 1.0], 0.3)
+    plate.prescribe(t, R)
+    system.solve("turned")
+    tied = dolfinx.fem.locate_dofs_topological(V, tdim, upper)
+    X = V.tabulate_dof_coordinates()[tied]
+    expected = t + (X - ref) @ (R - np.eye(3)).T
+    assert np.abs(u.x.array.reshape(-1, 3)[tied] - expected).max() < 1e-12
+    # more than the region's boundary: nodes inside the region are tied too
+    inside = X[(X[:, 2] > 0.021) & (X[:, 2] < 0.039)]
+    assert MPI.COMM_WORLD.allreduce(len(inside), op=MPI.SUM) > 0
+    free = np.abs(u.x.array).max()  # the lower half is strained, not rigidly carried
+    assert free > 0
+    system.destroy()

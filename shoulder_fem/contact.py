@@ -449,8 +449,13 @@ def _gather_master(V, facets: _Facets, comm: MPI.Comm, node_rows: np.ndarray) ->
         else np.zeros((0, 3), dtype=np.int64)
     )
     tris = np.concatenate(comm.allgather(tri_global))
-    nodes_local = np.unique(facets.nodes)
-    owned = nodes_local[nodes_local < imap.size_local]
+    # every rank owns its share of the master's nodes, also nodes of facets it does not hold
+    # (a facet is held by the owner of its cell, its nodes may be owned by another rank)
+    nodes_local = np.unique(facets.nodes).astype(np.int32)
+    g_local = imap.local_to_global(nodes_local) if len(nodes_local) else np.zeros(0, dtype=np.int64)
+    g_master = np.unique(np.concatenate(comm.allgather(g_local)))
+    mine = np.arange(imap.size_local, dtype=np.int32)
+    owned = mine[np.isin(imap.local_to_global(mine), g_master)] if len(mine) else mine
     g_owned = (
         imap.local_to_global(owned.astype(np.int32)) if len(owned) else np.zeros(0, dtype=np.int64)
     )

@@ -43,10 +43,16 @@ average at the vertices of the cell values, the same operator for both methods),
 the decoupled method the equilibrium residual of the transferred loads and the inertia loads.
 ``shoulder.npz`` in the run folder holds the arrays of :mod:`shoulder_fem.shoulder_report`.
 
-Not modelled (stated in the README): muscle-bone contact (muscles slide freely: nothing stops
-a muscle from passing through a bone; the largest such penetration is not yet measured),
-cartilage friction, and the Taylor-Hood pressure of the mesh module (pure-displacement P2
-instead, same for both methods).
+Muscle-bone contact (``muscle_contact``): ``none`` (default) lets the muscles pass through
+bone (at coarse, the infraspinatus's nodes reach 14.7 mm from the head centre at 50 deg, the
+head's bone radius being 22.5 mm); ``humeral-head`` makes the muscles' deep faces slide on
+the humerus's free surface around the head (penalty, :func:`_contact`): deformable in the
+coupled method, a layer of humerus cells carried by the rigid humerus in part 1. The
+muscles' contact with the scapula is not modelled.
+
+Not modelled (stated in the README): cartilage friction, muscle-scapula contact, and the
+Taylor-Hood pressure of the mesh module (pure-displacement P2 instead, same for both
+methods).
 """
 
 from __future__ import annotations
@@ -623,7 +629,9 @@ def _surfaces(facet_tags, names) -> dict:
 
 
 def _head_tags(model: ShoulderModel, mesh, facet_tags):
-    """The facet tags with the muscles' sliding master on the humeral head (collective)."""
+    """The facet tags, with the surfaces of muscle-bone contact if it is on (collective)."""
+    if not _muscle_contact(model.values):
+        return facet_tags
     reach = S.HEAD_REGION_FACTOR * model.geometry.articular_radius
     return S.head_surface_tags(mesh, facet_tags, reach)
 
@@ -641,16 +649,19 @@ def _contact(V, u, facet_tags, values: dict) -> Contact:
             slave=(S.MARKERS["glenoid_articular"].id,),
             master=MeshSurface((S.MARKERS["humeral_articular"].id,)),
             penalty=values["contact_penalty"],
-        ),
-        ContactPair(
-            "muscle_humerus",
-            slave=(S.MUSCLE_DEEP_SURFACE.id,),
-            master=MeshSurface((S.HUMERUS_HEAD_SURFACE.id,)),
-            penalty=values["muscle_contact_penalty"],
-            search_depth=values["muscle_contact_depth"],
-            smoothing=values["muscle_contact_smoothing"],
-        ),
-    ][: 2 if _muscle_contact(values) else 1]
+        )
+    ]
+    if _muscle_contact(values):
+        pairs.append(
+            ContactPair(
+                "muscle_humerus",
+                slave=(S.MUSCLE_DEEP_SURFACE.id,),
+                master=MeshSurface((S.HUMERUS_HEAD_SURFACE.id,)),
+                penalty=values["muscle_contact_penalty"],
+                search_depth=values["muscle_contact_depth"],
+                smoothing=values["muscle_contact_smoothing"],
+            )
+        )
     return Contact(
         V,
         u,

@@ -523,6 +523,10 @@ def _compare(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
     cf_c = cpl.series_at("contact_force", angles)
     cf_d = dec.series_at("contact_force", angles)
     cf_err = {_key(a): _rel(cf_d[i], cf_c[i]) for i, a in enumerate(angles)}
+    # the rotator cuff pressing on the humeral head (runs with muscle_contact only)
+    mb_c = cpl.series_at("muscle_bone_contact_force", angles)
+    mb_d = dec.series_at("muscle_bone_contact_force", angles)
+    mb_err = {_key(a): _rel(mb_d[i], mb_c[i]) for i, a in enumerate(angles)}
 
     g_pair = match_points(cpl.arrays["glenoid_points"], dec.arrays["glenoid_points"])
     if g_pair[2] < MIN_MATCHED_FRACTION:
@@ -565,6 +569,7 @@ def _compare(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
         "muscle_force_rel_error": _max_abs([v for m in MUSCLES for v in f_err[m].values()]),
         "muscle_force_rel_errors": f_err,
         "contact_force_rel_error": _max_abs(list(cf_err.values())),
+        "muscle_bone_contact_force_rel_error": _max_abs(list(mb_err.values())),
         "contact_region_jaccard": jac,
         "contact_region_jaccard_min": min((v for v in jac.values() if v is not None), default=None),
         "glenoid_points_compared": int(len(g_pair[0])),
@@ -931,6 +936,16 @@ def _metric_rows(report: dict) -> list[tuple[str, str]]:
         (
             "contact force: largest relative error",
             _fmt(report.get("contact_force_rel_error"), ".2%"),
+        ),
+        *(
+            [
+                (
+                    "cuff-on-head contact force: largest relative error",
+                    _fmt(report["muscle_bone_contact_force_rel_error"], ".2%"),
+                )
+            ]
+            if report.get("muscle_bone_contact_force_rel_error") is not None
+            else []
         ),
         (
             "contact region Jaccard index (min)",

@@ -77,6 +77,7 @@ def make_run(
     angles=ANGLES,
     scale: float = 1.0,
     status: str = "ok",
+    muscle_contact: bool = False,
     permute: bool = False,
     shift: float = 0.0,
 ) -> Path:
@@ -159,6 +160,11 @@ def make_run(
             "max_pressure": series(angles, p.max(axis=1), "Pa"),
             "contact_force": series(angles, scale * (300.0 + angles), "N"),
             **{f"{m}_force": series(angles, scale * f, "N") for m, f in muscles.items()},
+            **(
+                {"muscle_bone_contact_force": series(angles, scale * (1.0 + angles), "N")}
+                if muscle_contact
+                else {}
+            ),
         },
         "probes": {"final_angle_deg": float(angles[-1])},
         "probe_units": {"final_angle_deg": "deg"},
@@ -258,6 +264,7 @@ def test_identical_runs(tmp_path):
     assert rep["von_mises_max_abs_error_mpa"] == 0.0
     assert rep["max_pressure_rel_error"] == 0.0
     assert rep["muscle_force_rel_error"] == 0.0
+    assert rep["muscle_bone_contact_force_rel_error"] is None  # no muscle contact in the runs
     assert rep["contact_region_jaccard_min"] == 1.0
     assert rep["angles_compared_deg"] == list(ANGLES)
     assert rep["final_angle_deg"] == {"coupled": 60.0, "decoupled": 60.0}
@@ -270,9 +277,11 @@ def test_identical_runs(tmp_path):
 
 
 def test_scaled_results_and_resources(tmp_path):
-    c = make_run(tmp_path / "coupled", "coupled")
-    d = make_run(tmp_path / "decoupled", "decoupled", scale=1.02)
+    c = make_run(tmp_path / "coupled", "coupled", muscle_contact=True)
+    d = make_run(tmp_path / "decoupled", "decoupled", scale=1.02, muscle_contact=True)
     rep = write_report(c, d, tmp_path / "report", "coarse")
+    assert rep["muscle_bone_contact_force_rel_error"] == pytest.approx(0.02)
+    assert "cuff-on-head" in comparison_table(rep)
     assert rep["von_mises_slope"] == pytest.approx(1.02, rel=1e-12)
     assert rep["von_mises_correlation"] == pytest.approx(1.0)
     vm_max = von_mises(kuhn_mesh(4, 0.01, (-0.02, -0.02, -0.02))[0]).max()

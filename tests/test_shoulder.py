@@ -263,12 +263,10 @@ def test_muscle_contact_keeps_the_infraspinatus_out_of_the_humeral_head(tmp_path
     with h5py.File(out / "fields" / "part1.h5", "r") as h5:
         group = h5["Function/displacement"]
         U = group[max(group, key=float)][:]
-    # the humerus's rigid motion: Kabsch fit of the humeral cartilage's nodes (carried by it
-    # up to the cartilage's strain, microns against millimetres)
+    # the humerus's rigid motion: best fit of the humeral cartilage's nodes (carried by it up
+    # to the cartilage's strain, microns against millimetres)
     A, B = X[bond], X[bond] + U[bond]
-    H = (A - A.mean(0)).T @ (B - B.mean(0))
-    Uh, _, Vt = np.linalg.svd(H)
-    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ Uh.T))]) @ Uh.T
+    R = SH.best_fit_rotation(A, B, MPI.COMM_SELF)
     centre = B.mean(0) - R @ A.mean(0)  # the articular centre (the origin) moved
     nearest = np.linalg.norm(X[infra] + U[infra] - centre, axis=1).min()
     assert nearest > r_bone - sag - 2e-3, (nearest, r_bone, sag)

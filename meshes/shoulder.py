@@ -1268,7 +1268,7 @@ def model_to_dolfinx(
     if head_layer and comm.rank == rank:
         # the humerus cells on the head's free surface (see HUMERUS_HEAD_LAYER) and that surface
         soft_facets[MARKERS["humerus_surface"].id] = info["surfaces"]["humerus_surface"]
-        reach = HEAD_REGION_FACTOR * info["geometry"].articular_radius * _MM
+        reach = head_region_radius(info["geometry"]) * _MM
         layer = (HUMERUS_HEAD_LAYER.id, _head_layer_elements(info, reach))
     mesh, ct, ft = _tagged_mesh(comm, rank, 3, soft_cells, soft_facets, extra_cells=layer)
     bone_cells = (
@@ -1385,6 +1385,15 @@ def _tagged_mesh(
     )
     ft.name = "Facet tags"
     return mesh, ct, ft
+
+
+def head_region_radius(g: ShoulderGeometry) -> float:
+    """Reach (m) of the muscle-bone contact region about the articular centre.
+
+    The one value behind both the rigid-bone layer (:func:`_head_layer_elements`) and the
+    facet tags (:func:`head_surface_tags`), so that the master facets lie on the layer.
+    """
+    return HEAD_REGION_FACTOR * g.articular_radius
 
 
 def _head_layer_elements(info: dict, radius_mm: float) -> np.ndarray:

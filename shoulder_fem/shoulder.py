@@ -632,8 +632,7 @@ def _head_tags(model: ShoulderModel, mesh, facet_tags):
     """The facet tags, with the surfaces of muscle-bone contact if it is on (collective)."""
     if not _muscle_contact(model.values):
         return facet_tags
-    reach = S.HEAD_REGION_FACTOR * model.geometry.articular_radius
-    return S.head_surface_tags(mesh, facet_tags, reach)
+    return S.head_surface_tags(mesh, facet_tags, S.head_region_radius(model.geometry))
 
 
 def _muscle_contact(values: dict) -> bool:

@@ -14,8 +14,11 @@ and the same wall / CPU / memory figures for named stages of the run. Throughout
 Peak memory of a stage: at stage start the kernel's resident-memory high-water mark (``VmHWM``) is
 reset by writing ``5`` to ``/proc/self/clear_refs`` (Linux >= 4.0, own process). If the kernel
 refuses, the stage reports the process peak up to the stage end instead, and the output says so
-with ``peak_rss_stage_reset = false``. The run-wide peak is always the true process peak: the
-high-water mark is read before every reset and kept (by every monitor alive in the process).
+with ``peak_rss_stage_reset = false``. The run-wide peak is the peak since the monitor was made:
+at construction the freed heap is given back to the kernel (``malloc_trim``) and the mark is
+reset, so that of two runs in one process (``bench``) the second does not report the first's
+peak; the resident memory left at that point is reported as ``start_rss_mb``. The high-water
+mark is read before every reset and kept by every monitor alive in the process.
 
 The BLAS actually loaded in the process is read from ``/proc/self/maps`` by :func:`blas_library`.
 """
@@ -146,6 +149,20 @@ def _reset_hwm() -> bool:
     return hwm - rss <= 4 * 1024
 
 
+def release_memory() -> int:
+    """Collect garbage and return the heap's free pages to the kernel (glibc ``malloc_trim``).
+
+    Returns:
+        The resident memory afterwards (KiB, ``VmRSS``).
+    """
+    import gc
+
+    gc.collect()
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    return _memory_kib()[1]
+
+
 @dataclass
 class _OpenStage:
     name: str
@@ -179,12 +196,17 @@ class ResourceMonitor:
     def __init__(self, comm: MPI.Comm, scratch_dir: Path | None = None) -> None:
         self.comm = comm
         self.scratch_dir = Path(scratch_dir) if scratch_dir is not None else None
+        # A run measures its own peak, not that of what ran before it in the process (bench runs
+        # both methods in one): give freed memory back to the kernel and restart the mark.
+        for monitor in list(_LIVE_MONITORS):
+            monitor._fold_peak()
+        self.start_rss_kib = release_memory()
+        self._reset_ok = _reset_hwm()
         self._wall0 = time.perf_counter()
         self._cpu0 = _cpu_seconds()
         self._run_peak_kib = _memory_kib()[0]
         self._open: list[_OpenStage] = []
         self._local_stages: list[dict[str, Any]] = []
-        self._reset_ok = True
         self._scratch_peak = 0
         self._stages: list[dict[str, Any]] | None = None
         _LIVE_MONITORS.add(self)
@@ -247,10 +269,14 @@ class ResourceMonitor:
                 scratch folder is excluded if it lies inside.
 
         Returns:
-            ``{"wall_s", "cpu_s", "peak_rss_mb", "temp_disk_mb", "results_disk_mb", "ranks",
-            "peak_rss_stage_reset"}``, the same on every rank: wall time since construction [s]
-            (max over ranks), CPU time since construction [s] (sum over ranks), each rank's process
-            peak resident memory summed over ranks [MB], the peak scratch-folder size seen [MB],
+            ``{"wall_s", "cpu_s", "peak_rss_mb", "start_rss_mb", "temp_disk_mb",
+            "results_disk_mb", "ranks", "peak_rss_stage_reset"}``, the same on every rank: wall
+            time since construction [s] (max over ranks), CPU time since construction [s] (sum
+            over ranks), each rank's peak resident memory since construction summed over ranks
+            [MB], the resident memory at construction (after freed memory was given back; what
+            the process held before the run, e.g. the interpreter and libraries, or the heap left
+            by an earlier run in the same process) summed over ranks [MB], the peak
+            scratch-folder size seen [MB],
             the size of ``results_dir`` now [MB], the number of ranks, and whether the per-stage
             memory peaks are true per-stage peaks (True) or process peaks up to each stage's end
             (False). The per-stage figures are then available from :attr:`stages`.
@@ -273,7 +299,7 @@ class ResourceMonitor:
         n = len(names)
         mx = np.array([wall] + [s["wall_s"] for s in self._local_stages], dtype=np.float64)
         sm = np.array(
-            [cpu, self._run_peak_kib / 1024.0, float(self._reset_ok)]
+            [cpu, self._run_peak_kib / 1024.0, float(self._reset_ok), self.start_rss_kib / 1024.0]
             + [s["cpu_s"] for s in self._local_stages]
             + [s["peak_kib"] / 1024.0 for s in self._local_stages],
             dtype=np.float64,
@@ -298,8 +324,8 @@ class ResourceMonitor:
             {
                 "name": names[i],
                 "wall_s": float(mx_all[1 + i]),
-                "cpu_s": float(sm_all[3 + i]),
-                "peak_rss_mb": float(sm_all[3 + n + i]),
+                "cpu_s": float(sm_all[4 + i]),
+                "peak_rss_mb": float(sm_all[4 + n + i]),
             }
             for i in range(n)
         ]
@@ -307,6 +333,7 @@ class ResourceMonitor:
             "wall_s": float(mx_all[0]),
             "cpu_s": float(sm_all[0]),
             "peak_rss_mb": float(sm_all[1]),
+            "start_rss_mb": float(sm_all[3]),
             "temp_disk_mb": temp_bytes / MB,
             "results_disk_mb": results_bytes / MB,
             "ranks": comm.size,

@@ -334,7 +334,11 @@ def test_resource_monitor_excludes_scratch_and_falls_back(
 
 
 def test_resource_monitor_keeps_peak_across_monitors(tmp_path: Path) -> None:
-    """A stage of one monitor resetting the high-water mark does not hide the peak from another."""
+    """A monitor made later measures from its own start; an older one keeps the earlier peak.
+
+    ``bench`` runs both methods in one process: the second run must not report the first's
+    peak, yet a monitor that was alive throughout must still see it.
+    """
     outer = ResourceMonitor(COMM)
     hwm, rss = _hwm_rss_mb()
     block = np.ones(int((max(hwm - rss, 0.0) + 100.0) * MB) // 8)
@@ -343,8 +347,11 @@ def test_resource_monitor_keeps_peak_across_monitors(tmp_path: Path) -> None:
     inner = ResourceMonitor(COMM)
     with inner.stage("small"):
         pass
-    assert outer.finish(tmp_path)["peak_rss_mb"] >= top - 1.0
-    assert inner.finish(tmp_path)["peak_rss_mb"] >= top - 1.0
+    assert outer.finish(tmp_path)["peak_rss_mb"] >= COMM.size * (top - 1.0)
+    res = inner.finish(tmp_path)
+    if res["peak_rss_stage_reset"]:  # the kernel let the mark restart: 100 MB were freed
+        assert res["peak_rss_mb"] <= COMM.size * (top - 50.0)
+        assert res["start_rss_mb"] <= res["peak_rss_mb"] + 1e-9
 
 
 def test_dir_size_bytes(tmp_path: Path) -> None:

@@ -1231,6 +1231,29 @@ class Contact:
             )
         return out
 
+    def master_points(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Where pair ``name`` presses on its mesh master, in the master's reference geometry.
+
+        Returns this rank's active contact points as their closest master points in the
+        reference configuration (m, (n, 3): the master nodes' reference positions weighted as
+        the current closest points) and their normal forces p dA (N, (n,)). Collective (it
+        may evaluate the contact).
+
+        Raises:
+            ContactError: No pair of that name, or its master is not a mesh surface.
+        """
+        names = [p.name for p in self.pairs]
+        if name not in names:
+            raise ContactError(f"no contact pair {name!r} (pairs: {', '.join(names)})")
+        i = names.index(name)
+        if self._masters[i] is None:
+            raise ContactError(f"contact pair {name!r}: its master is not a mesh surface")
+        self._ensure()
+        st, m = self._state[i], self._masters[i]
+        a = st["active"]
+        X = np.einsum("qk,qki->qi", st["bary"][a], m.X[st["m_idx"][a]])
+        return X, st["p"][a] * st["W"][a]
+
     def record(self, recorder, prefix: str = "", point: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
         """Put every pair's resultants in a run's probes as ``<prefix><pair>_<name>`` (SI)."""
         units = {

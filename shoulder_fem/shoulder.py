@@ -168,6 +168,7 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     model = ShoulderModel(scene, level, comm, method, values, geometry, meshes, axis, image)
     first = meshes["deformable" if method == "coupled" else "rigid-bone"]
     model.info["glenoid_frame"] = _glenoid_frame(first.mesh, first.facet_tags)
+    model.info["humeral_cap"] = humeral_cap(first.mesh, first.facet_tags)
     return model
 
 
@@ -233,6 +234,18 @@ def twist_angle(R: np.ndarray, axis: np.ndarray) -> float:
     """Twist (rad) of rotation ``R`` about the unit ``axis`` (swing-twist decomposition)."""
     x, y, z, w = Rotation.from_matrix(R).as_quat()
     return 2.0 * math.atan2(float(np.dot([x, y, z], axis)), w)
+
+
+def swing_angle(R: np.ndarray, axis: np.ndarray) -> float:
+    """Swing (rad) of rotation ``R``: the angle by which it turns the unit ``axis`` itself."""
+    return math.acos(float(np.clip(np.dot(axis, R @ axis), -1.0, 1.0)))
+
+
+def cap_angles(X: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Angles (rad) of points ``X`` (n, 3) from the unit ``axis`` of a cap, seen from ``centre``."""
+    d = np.asarray(X, dtype=float).reshape(-1, 3) - centre
+    r = np.linalg.norm(d, axis=1)
+    return np.arccos(np.clip(d @ axis / np.where(r > 0, r, 1.0), -1.0, 1.0))
 
 
 def best_fit_rotation(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> np.ndarray:
@@ -723,9 +736,9 @@ def run_coupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, optio
     humerus_dofs = humerus_dofs[humerus_dofs < V.dofmap.index_map.size_local]
     X_h = V.tabulate_dof_coordinates()[humerus_dofs]
 
-    def angle() -> float:
+    def rotation() -> np.ndarray:
         x = X_h + u.x.array.reshape(-1, 3)[humerus_dofs]
-        return twist_angle(best_fit_rotation(X_h, x, comm), model.shaft_axis)
+        return best_fit_rotation(X_h, x, comm)
 
     stress_vm = VonMises(mesh, ct_, _cauchy(bone, u))
     probe = Probe(u, ct_, ft, contact, v)
@@ -737,17 +750,44 @@ def run_coupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, optio
         system,
         contact,
         actuator,
-        angle,
+        rotation,
         probe,
         stress_vm,
         u,
         "coupled",
         "rotation",
     )
-    recorder.extra("dofs_coupled", V.dofmap.index_map.size_global * 3)
+    recorder.extra("dofs_coupled", _unknowns(system))
     _save_results(model, data, stress_vm, mesh, ft, fields_dir.parent / "shoulder.npz")
     probe.destroy()
     system.destroy()
+
+
+def _unknowns(system: RigidSystem) -> int:
+    """Unknowns of a system's Newton solves: free FE DOFs and six per rigid body (collective).
+
+    Tied and fixed nodes are not unknowns (the rigid-bone mesh carries tied bone nodes).
+    """
+    x = system.reduced_vector()
+    n = x.getSize()
+    x.destroy()
+    return int(n)
+
+
+def humeral_cap(mesh, ft) -> tuple[np.ndarray, np.ndarray, float]:
+    """The humeral cartilage as meshed: centre (m), unit axis, half-angle (rad) (collective).
+
+    The centre is the articular sphere's (the frame origin of :mod:`meshes.shoulder`, for every
+    head shape); the axis points from it to the centroid of the articular surface; the
+    half-angle is that of the articular surface's farthest node from the axis.
+    """
+    centre = np.zeros(3)
+    axis = _unit(patch_centroid(mesh, ft, S.MARKERS["humeral_articular"].id) - centre)
+    Q = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
+    nodes = dolfinx.fem.locate_dofs_topological(Q, 2, ft.find(S.MARKERS["humeral_articular"].id))
+    X = Q.tabulate_dof_coordinates()[nodes]
+    half = float(cap_angles(X, centre, axis).max(initial=0.0))
+    return centre, axis, mesh.comm.allreduce(half, op=MPI.MAX)
 
 
 def _glenoid_frame(mesh, ft) -> tuple[np.ndarray, np.ndarray]:
@@ -824,7 +864,7 @@ def _run_steps(
     system,
     contact,
     actuator,
-    angle,
+    rotation,
     probe,
     stress_vm,
     u,
@@ -832,9 +872,33 @@ def _run_steps(
     stage,
     on_output_extra=None,
 ):
-    """Drive the rotation, recording every output angle; write shoulder.npz (collective)."""
+    """Drive the rotation, recording every output angle; write shoulder.npz (collective).
+
+    ``rotation()`` is the humerus's current rotation: its twist about the shaft axis is the
+    progress angle, its swing (how far the shaft axis itself turns) is recorded with it.
+    """
     v = model.values
     comm = system.comm
+    cap_centre, cap_axis, cap_half = model.info["humeral_cap"]
+    recorder.set_probe("humeral_cap_half_angle_deg", math.degrees(cap_half), "deg")
+
+    def angle() -> float:
+        return twist_angle(rotation(), model.shaft_axis)
+
+    def cap_position() -> tuple[float, float]:
+        """Where the glenoid presses on the humeral cartilage, in deg from the cartilage's axis.
+
+        Force-weighted mean and largest angle, in the humerus's reference geometry.
+        """
+        X, f = contact.master_points("glenohumeral")
+        a = cap_angles(X, cap_centre, cap_axis)
+        fa, fs = (
+            comm.allreduce(float((f * a).sum()), op=MPI.SUM),
+            comm.allreduce(float(f.sum()), op=MPI.SUM),
+        )
+        top = comm.allreduce(float(a.max(initial=0.0)), op=MPI.MAX)
+        return (math.degrees(fa / fs) if fs > 0 else 0.0), math.degrees(top)
+
     direction = _unit(ACTUATION_DIRECTION)
     data = {"angles_deg": [], "glenoid_pressure": [], "glenoid_shear": []}
     writer = dolfinx.io.XDMFFile(comm, str(fields_dir / f"{label}.xdmf"), "w")
@@ -852,6 +916,16 @@ def _run_steps(
         res, wrap = both["glenohumeral"], both.get("muscle_humerus")
         x = math.degrees(target)
         recorder.add_series_point("humeral_angle", x, deg, "deg", "deg")
+        recorder.add_series_point(
+            "humeral_swing",
+            x,
+            math.degrees(swing_angle(rotation(), model.shaft_axis)),
+            "deg",
+            "deg",
+        )
+        mean, top = cap_position()
+        recorder.add_series_point("humeral_cap_contact_angle", x, mean, "deg", "deg")
+        recorder.add_series_point("humeral_cap_contact_angle_max", x, top, "deg", "deg")
         recorder.add_series_point("max_pressure", x, float(p.max()) if len(p) else 0.0, "deg", "Pa")
         recorder.add_series_point("max_shear", x, float(t.max()) if len(t) else 0.0, "deg", "Pa")
         recorder.add_series_point(
@@ -902,6 +976,13 @@ def _run_steps(
     _count_solves(recorder, system.stats, log.steps)
     recorder.count("cutbacks", log.failed_steps)
     if stop is not None:
+        mean, top = cap_position()  # at the last converged state: where the contact had got to
+        stop += (
+            f"; at {math.degrees(final):.2f} deg the glenoid pressed on the humeral cartilage up "
+            f"to {top:.1f} deg from its axis (force-weighted mean {mean:.1f} deg; the cartilage "
+            f"ends at {math.degrees(cap_half):.1f} deg) and the shaft had swung "
+            f"{math.degrees(swing_angle(rotation(), model.shaft_axis)):.1f} deg"
+        )
         recorder.set_status("incomplete", stop)
         logger.error("%s", stop)
     data["final_angle_deg"] = math.degrees(final)
@@ -1075,7 +1156,7 @@ def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, opt
         system,
         contact,
         actuator,
-        lambda: twist_angle(humerus.rotation, model.shaft_axis),
+        lambda: humerus.rotation,
         probe,
         None,
         u,
@@ -1083,7 +1164,7 @@ def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, opt
         "part1",
         on_output_extra=record_transfer,
     )
-    recorder.extra("dofs_part1", V.dofmap.index_map.size_global * 3 + 18)
+    recorder.extra("dofs_part1", _unknowns(system))
     points = _gather_rows(X_load, comm)
     probe.destroy()
     system.destroy()

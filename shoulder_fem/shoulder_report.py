@@ -543,6 +543,15 @@ def _compare(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
             f"(at least {MIN_MATCHED_FRACTION:.0%} needed)"
         )
     jac = _jaccard(cpl, dec, angles, g_pair[:2])
+    # the humerus's swing and where the glenoid presses on the humeral cartilage (deg)
+    motion = {
+        key: {"coupled": cpl.series_at(name, angles), "decoupled": dec.series_at(name, angles)}
+        for key, name in (
+            ("humeral_swing_deg", "humeral_swing"),
+            ("humeral_cap_contact_angle_deg", "humeral_cap_contact_angle"),
+            ("humeral_cap_contact_angle_max_deg", "humeral_cap_contact_angle_max"),
+        )
+    }
     per_angle = []
     for i, a in enumerate(angles):
         row: dict[str, Any] = {
@@ -555,6 +564,8 @@ def _compare(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
         for muscle, f in forces.items():
             row[f"{muscle}_force_n"] = {"coupled": f["coupled"][i], "decoupled": f["decoupled"][i]}
             row[f"{muscle}_force_rel_error"] = f_err[muscle].get(_key(a))
+        for key, m in motion.items():
+            row[key] = {"coupled": m["coupled"][i], "decoupled": m["decoupled"][i]}
         per_angle.append(row)
 
     ratios = resource_ratios(cpl.summary, dec.summary)
@@ -574,6 +585,9 @@ def _compare(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
         "contact_region_jaccard_min": min((v for v in jac.values() if v is not None), default=None),
         "glenoid_points_compared": int(len(g_pair[0])),
         "scapula_vertices_matched_fraction": float(s_pair[2]),
+        "humeral_cap_half_angle_deg": cpl.summary.get("probes", {}).get(
+            "humeral_cap_half_angle_deg"
+        ),
     }
     out.update(_von_mises_metrics(cpl, dec, s_pair[:2]))
     out["per_angle"] = per_angle
@@ -992,6 +1006,31 @@ def _per_angle_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     return head, rows
 
 
+def _motion_rows(report: dict) -> tuple[list[str], list[list[str]]]:
+    """Per angle: the humerus's swing and the contact's place on the humeral cartilage."""
+    head = [
+        "angle deg",
+        "swing cpl deg",
+        "swing dec deg",
+        "contact mean cpl deg",
+        "contact mean dec deg",
+        "contact max cpl deg",
+        "contact max dec deg",
+    ]
+    rows = []
+    for r in report.get("per_angle", []):
+        if "humeral_swing_deg" not in r:
+            continue
+        rows.append([_fmt(r["angle_deg"], "g")])
+        for key in (
+            "humeral_swing_deg",
+            "humeral_cap_contact_angle_deg",
+            "humeral_cap_contact_angle_max_deg",
+        ):
+            rows[-1] += [_fmt(r[key]["coupled"], ".1f"), _fmt(r[key]["decoupled"], ".1f")]
+    return head, rows
+
+
 def _resource_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     table = report.get("resources", {})
     head = [""] + [RESOURCE_LABELS[k] for k in RESOURCE_COLUMNS]
@@ -1075,11 +1114,29 @@ def _markdown(report: dict) -> str:
         "",
         "CPU time and memory are sums over ranks; the totals are whole runs (meshing "
         "included), the parts are the stages of the decoupled run. Temporary and results disk "
-        "are measured per run only (– per part).",
+        "are measured per run only (– per part). Each run's peak memory is measured from its "
+        "own start (freed memory given back first), though both ran in one process. DOFs: the "
+        "coupled displacement DOFs; part 1: its Newton unknowns (the free soft-tissue DOFs and "
+        "6 per rigid body; the tied bone nodes are not unknowns); part 2: the scapula's DOFs.",
     ]
     head, rows = _per_angle_rows(report)
     lines += ["", "## Per output angle", ""]
     lines += [_markdown_table(head, rows)] if rows else ["No common output angle."]
+    head, rows = _motion_rows(report)
+    half = report.get("humeral_cap_half_angle_deg")
+    if rows and all(cell != "–" for row in rows for cell in row[1:]):
+        lines += [
+            "",
+            "## Humeral swing and the contact on the humeral cartilage",
+            "",
+            "Swing: the angle by which the humerus's shaft axis turns (the rotation's part that "
+            "is not a twist about it). Contact: where the glenoid presses on the humeral "
+            "cartilage, in degrees from the cartilage's axis (force-weighted mean and largest), "
+            f"in the humerus's reference geometry; the cartilage ends at {_fmt(half, '.1f')} "
+            "deg. A contact that reaches that edge has run off the articular surface.",
+            "",
+            _markdown_table(head, rows),
+        ]
     lines += ["", "## Figures", ""]
     for name, caption in FIGURES.items():
         lines += [f"### {caption}", "", f"![{caption}]({name})", ""]

@@ -429,6 +429,30 @@ def test_search_depth_bounds_the_overlap_taken_as_contact():
         ContactPair("p", (1,), MeshSurface((2,)), 1.0, search_depth=0.0)
 
 
+@pytest.mark.mpi
+def test_master_points_are_where_the_slave_presses_in_the_master_reference():
+    """The upper block (offset 0.25 m in x) moved rigidly 1 mm into the lower one: every
+    contact point lies on the overlap x in [0.25, 1], its master point is its own (x, y) on the
+    lower block's undeformed top (1 mm above it: the blocks touched), and the forces p dA add
+    up to eps x 1 mm over the 0.75 m^2 overlap (hand calculation)."""
+    delta = 1e-3
+    tb = TwoBlocks(offset=(0.25, 0.0))
+    upper = dolfinx.fem.locate_dofs_topological(tb.V, 3, tb.ct.find(cb.UPPER.id))
+    tb.u.x.array.reshape(-1, 3)[upper, 2] = -delta
+    X, f = tb.contact.master_points("interface")
+    st = tb.contact._state[0]
+    xq = st["xq"][st["active"]]
+    comm = MPI.COMM_WORLD
+    assert comm.allreduce(len(X), op=MPI.SUM) > 0
+    assert np.allclose(X[:, :2], xq[:, :2], atol=1e-12)
+    assert np.allclose(X[:, 2], xq[:, 2] + delta, atol=1e-12)
+    assert np.all(X[:, 0] >= 0.25 - 1e-12)
+    total = comm.allreduce(float(f.sum()), op=MPI.SUM)
+    assert total == pytest.approx(tb.eps * delta * 0.75, rel=1e-9)
+    with pytest.raises(ContactError, match="no contact pair 'nope'"):
+        tb.contact.master_points("nope")
+
+
 def test_smoothed_penalty_law_by_hand():
     """The C1 penalty law (ε = 2, s = 1): zero below -s, ε (d + s)²/(4 s) within, ε d above;
     values and slopes by hand, and the slope is the derivative (central differences)."""

@@ -2,11 +2,13 @@
 
 The module fixture runs the scene with ``final_angle`` = 50 deg (steps of 5 deg, outputs every
 10 deg) with both methods and writes the report. The scene's 60 deg is not reached at this
-level: from 40 deg the pressure peak sits on the anterior rim of the coarse glenoid and near
-56 deg Newton no longer converges (README, "The shoulder study"). The tests check the
-outputs, the decoupled method against the coupled reference (``COARSE_TOLERANCES``, measured
-values in the README), the transfer of part 1's loads to part 2, the scapula's suspension, a
-stalled rotation, and (under ``mpirun -n 2``) parallel against serial on a short rotation.
+level: the humerus swings as it turns, the glenoid presses on the edge of the humeral cartilage
+from 30 deg and near 56 deg Newton no longer converges (README, "The shoulder study"). The
+tests check the outputs, the decoupled method against the coupled reference
+(``COARSE_TOLERANCES``, measured values in the README), the swing and the contact's place on
+the humeral cartilage (the same with both methods), the transfer of part 1's loads to part 2,
+the scapula's suspension, a stalled rotation, and (under ``mpirun -n 2``) parallel against
+serial on a short rotation.
 """
 
 from __future__ import annotations

@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -353,9 +354,21 @@ class BodyBalance:
 
 @dataclass
 class RigidSolveStats(SolveStats):
-    """:class:`SolveStats` plus the residual-norm history of every solve."""
+    """:class:`SolveStats` plus the residual-norm history of every solve and where the time went.
+
+    Wall seconds of this rank: ``snes_s`` in the Newton solves in all, ``residual_s`` and
+    ``jacobian_s`` in their residual and Jacobian evaluations (contact included); the rest of
+    ``snes_s`` is the linear solves (factorizations). Within ``jacobian_s``: ``fe_assembly_s``
+    (the FE residual and matrix) and ``reduction_s`` (the products Pᵀ K P of the FE and contact
+    matrices and their merge).
+    """
 
     residual_histories: list[list[float]] = field(default_factory=list)
+    snes_s: float = 0.0
+    residual_s: float = 0.0
+    jacobian_s: float = 0.0
+    fe_assembly_s: float = 0.0
+    reduction_s: float = 0.0
 
 
 def _owned_flags(imap, local_nodes: np.ndarray, comm: MPI.Comm) -> np.ndarray:
@@ -983,6 +996,13 @@ class RigidSystem:
 
     # ---- SNES callbacks -------------------------------------------------------------------
     def _residual(self, snes: PETSc.SNES, x: PETSc.Vec, r: PETSc.Vec) -> None:
+        t0 = time.perf_counter()
+        try:
+            self._residual_impl(x, r)
+        finally:
+            self.stats.residual_s += time.perf_counter() - t0
+
+    def _residual_impl(self, x: PETSc.Vec, r: PETSc.Vec) -> None:
         self._update_state(x)
         if self._fe:
             self._assemble_F()
@@ -1006,22 +1026,36 @@ class RigidSystem:
                     arr[k : k + 6] = 0.0
 
     def _jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, J: PETSc.Mat, P: PETSc.Mat) -> None:
+        t0 = time.perf_counter()
+        try:
+            self._jacobian_impl(x, J)
+        finally:
+            self.stats.jacobian_s += time.perf_counter() - t0
+
+    def _jacobian_impl(self, x: PETSc.Vec, J: PETSc.Mat) -> None:
         self._update_state(x)
         J.zeroEntries()
         if self._fe:
+            t0 = time.perf_counter()
             self._assemble_F()
             self._assemble_K()
+            t1 = time.perf_counter()
             self._fill_prolongation(self._P)
             self._K.PtAP(self._P, self._C)
             J.axpy(1.0, self._C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            t2 = time.perf_counter()
+            self.stats.fe_assembly_s += t1 - t0
+            self.stats.reduction_s += t2 - t1
             if self.contact is not None:
                 from .contact import add_to_pattern
 
                 Kc = self.contact.jacobian_matrix(self._K)
+                t3 = time.perf_counter()
                 Cc = Kc.PtAP(self._P)
                 self._contact_keys = add_to_pattern(J, Cc, self._contact_keys, self.comm)
                 Kc.destroy()
                 Cc.destroy()
+                self.stats.reduction_s += time.perf_counter() - t3
         _, tan = self._rigid_terms(with_tangent=True)
         if self.comm.rank == 0 and len(self.bodies):
             rigid = np.arange(
@@ -1057,12 +1091,14 @@ class RigidSystem:
         x = self._x_from_state()
         self.snes.setConvergenceHistory(length=200, reset=True)
         petsc_error = None
+        t0 = time.perf_counter()
         try:
             self.snes.solve(None, x)
         except PETSc.Error as err:  # e.g. MUMPS on a matrix with NaN entries
             petsc_error = f"PETSc error {err.ierr} in the solve (a failed factorization)"
         except ArithmeticError as err:  # a diverged iterate, e.g. a rotation vector of 1e80
             petsc_error = f"{type(err).__name__} in the residual or Jacobian ({err})"
+        self.stats.snes_s += time.perf_counter() - t0
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
         history = [float(v) for v in self.snes.getConvergenceHistory()[0]]

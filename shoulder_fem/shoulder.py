@@ -856,6 +856,31 @@ def _count_solves(recorder, stats, steps: int) -> None:
     recorder.count("factorizations", stats.factorizations)
 
 
+def _time_split(recorder, label: str, system: RigidSystem, contact: Contact) -> None:
+    """Where a stepping's Newton time went (probes ``<label>_time_*_s``, wall s, slowest rank).
+
+    ``newton``: in the Newton solves in all; ``residual`` and ``jacobian``: their evaluations
+    (FE assembly, contact, the reduction to the rigid bodies; within ``jacobian``:
+    ``jacobian_fe_assembly`` and ``jacobian_reduction``, the products Pᵀ K P); ``linear``: the
+    rest of
+    ``newton`` (the LU factorizations and solves); ``contact``: the contact search and
+    assembly, part of ``residual`` and ``jacobian``.
+    """
+    st, cs = system.stats, contact.stats
+    times = {
+        "newton": st.snes_s,
+        "residual": st.residual_s,
+        "jacobian": st.jacobian_s,
+        "jacobian_fe_assembly": st.fe_assembly_s,
+        "jacobian_reduction": st.reduction_s,
+        "linear": max(st.snes_s - st.residual_s - st.jacobian_s, 0.0),
+        "contact": cs.search_s + cs.assembly_s,
+    }
+    for key, value in times.items():
+        worst = system.comm.allreduce(float(value), op=MPI.MAX)
+        recorder.set_probe(f"{label}_time_{key}_s", worst, "s")
+
+
 def _run_steps(
     model,
     recorder,
@@ -974,6 +999,7 @@ def _run_steps(
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
     _count_solves(recorder, system.stats, log.steps)
+    _time_split(recorder, label, system, contact)
     recorder.count("cutbacks", log.failed_steps)
     if stop is not None:
         mean, top = cap_position()  # at the last converged state: where the contact had got to

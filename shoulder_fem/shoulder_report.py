@@ -1006,6 +1006,37 @@ def _per_angle_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     return head, rows
 
 
+#: Where the Newton time went (probes ``<stepping>_time_<key>_s`` of the runs), in table order.
+TIME_SPLIT = (
+    ("newton", "Newton solves, in all"),
+    ("residual", "residual evaluations"),
+    ("jacobian", "Jacobian evaluations"),
+    ("jacobian_fe_assembly", "of which FE residual and matrix assembly"),
+    ("jacobian_reduction", "of which reduction P^T K P (rigid bodies)"),
+    ("linear", "linear solves (LU)"),
+    ("contact", "contact search and assembly (in residual and Jacobian)"),
+)
+
+
+def _time_split(cpl: RunData, dec: RunData) -> dict[str, dict[str, float | None]]:
+    """Wall seconds per Newton task: coupled (its rotation) and decoupled part 1."""
+    out = {}
+    for column, run, label in (("coupled", cpl, "coupled"), ("part1", dec, "part1")):
+        probes = run.summary.get("probes", {})
+        out[column] = {k: probes.get(f"{label}_time_{k}_s") for k, _ in TIME_SPLIT}
+    return out
+
+
+def _time_rows(report: dict) -> tuple[list[str], list[list[str]]]:
+    split = report.get("time_split") or {}
+    head = ["wall s (slowest rank)", "coupled", "decoupled part 1"]
+    rows = [
+        [label] + [_fmt((split.get(c) or {}).get(key), ".1f") for c in ("coupled", "part1")]
+        for key, label in TIME_SPLIT
+    ]
+    return head, rows
+
+
 def _motion_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     """Per angle: the humerus's swing and the contact's place on the humeral cartilage."""
     head = [
@@ -1119,6 +1150,14 @@ def _markdown(report: dict) -> str:
         "coupled displacement DOFs; part 1: its Newton unknowns (the free soft-tissue DOFs and "
         "6 per rigid body; the tied bone nodes are not unknowns); part 2: the scapula's DOFs.",
     ]
+    head, rows = _time_rows(report)
+    if any(cell != "–" for row in rows for cell in row[1:]):
+        lines += [
+            "",
+            "Where the Newton time went (wall seconds; part 2 is one LU and a few solves):",
+            "",
+            _markdown_table(head, rows),
+        ]
     head, rows = _per_angle_rows(report)
     lines += ["", "## Per output angle", ""]
     lines += [_markdown_table(head, rows)] if rows else ["No common output angle."]
@@ -1235,6 +1274,7 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
         "section_polygons": n_polys,
         "per_angle": metrics["per_angle"],
         "resources": resources,
+        "time_split": _time_split(cpl, dec),
         "notes": notes,
         "figures": list(FIGURES),
     }

@@ -180,6 +180,23 @@ def test_swing_and_the_contact_on_the_humeral_cartilage(study):
     assert "## Humeral swing and the contact on the humeral cartilage" in md
 
 
+def test_where_the_newton_time_went_adds_up(study):
+    """The Newton time split of both steppings: every part is timed inside the Newton solves
+    (residual and Jacobian callbacks, contact within them, assembly and reduction within the
+    Jacobian), so the parts cannot exceed their wholes; the report tabulates them."""
+    for method, label in (("coupled", "coupled"), ("decoupled", "part1")):
+        p = study["results"][method].probes
+        t = {k: p[f"{label}_time_{k}_s"] for k, _ in shoulder_report.TIME_SPLIT}
+        assert all(v >= 0 for v in t.values()), t
+        assert t["residual"] + t["jacobian"] <= t["newton"] * (1 + 1e-9), t
+        assert t["jacobian_fe_assembly"] + t["jacobian_reduction"] <= t["jacobian"], t
+        assert 0 < t["contact"] <= t["residual"] + t["jacobian"], t
+        assert t["linear"] == pytest.approx(t["newton"] - t["residual"] - t["jacobian"])
+        assert study["report"]["time_split"][label]["newton"] == pytest.approx(t["newton"])
+    md = (study["base"] / "report" / "report.md").read_text()
+    assert "Where the Newton time went" in md
+
+
 def test_transferred_loads_balance_the_springs_and_part2_factorizes_once(study):
     """Part 1's loads on the scapula (glenoid, supraspinatus, infraspinatus) and its springs at
     the recorded pose are in equilibrium (a conservation law of part 1); part 2 reuses one

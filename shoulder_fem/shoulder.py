@@ -110,7 +110,9 @@ DISTAL_DIRECTION = (0.0, 0.0, -1.0)
 ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 #: The bonded interface cut open in the coupled mesh: the driven origin plate is not bone.
 DETACHED = (("subscapularis_origin", "subscapularis"),)
-MESH_INTEGRATION = os.environ.get("SFEM_MI", "segments")
+#: Contact integration against the mesh masters (:class:`shoulder_fem.contact.Contact`): the
+#: segments rule; point-wise integration stalled at 6 deg at coarse (README).
+MESH_INTEGRATION = "segments"
 SCAPULA_LOAD_SURFACES = ("glenoid_cartilage_bone", "supraspinatus_origin", "infraspinatus_origin")
 REPORTED_MUSCLES = ("subscapularis", "supraspinatus", "infraspinatus")
 

@@ -105,6 +105,13 @@ ROW_DIRECTIONS = (
 AP_DIRECTION = (0.0, 1.0, 0.0)
 #: The humerus's distal elements: vertical, downwards (they prevent abduction).
 DISTAL_DIRECTION = (0.0, 0.0, -1.0)
+#: The optional horizontal distal elements (``humerus_horizontal_stiffness``): their patch
+#: (shared with a vertical element) and direction, lateral and anterior; together they hold
+#: the distal humerus against a horizontal swing.
+HORIZONTAL_ELEMENTS = (
+    ("humerus_distal_spring_1", (1.0, 0.0, 0.0)),
+    ("humerus_distal_spring_2", (0.0, 1.0, 0.0)),
+)
 
 #: Displacement direction of the subscapularis origin plate: medial, along the blade.
 ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
@@ -267,7 +274,11 @@ def _unit(v) -> np.ndarray:
 
 
 def spring_layout(values: dict) -> list[dict]:
-    """Every flexible element: name, patch surface, bone, direction and stiffness (N/m)."""
+    """Every flexible element: name, patch surface, bone, direction and stiffness (N/m).
+
+    Several elements may share a patch (the horizontal distal elements sit on the patches of
+    two vertical ones).
+    """
     out = []
     for i in range(20):
         d = ROW_DIRECTIONS[i % 5]  # rows at z = -45, -27, -9, 9, 27 mm
@@ -296,6 +307,19 @@ def spring_layout(values: dict) -> list[dict]:
                 "stiffness": values["humerus_spring_stiffness"],
             }
         )
+    if values["humerus_horizontal_stiffness"] > 0:
+        for i, (patch, d) in enumerate(HORIZONTAL_ELEMENTS):
+            out.append(
+                {
+                    "name": f"humerus_horizontal_spring_{i + 1}",
+                    "patch": patch,
+                    "bone": "humerus",
+                    "direction": _unit(d),
+                    "stiffness": values["humerus_horizontal_stiffness"],
+                }
+            )
+    for sp in out:
+        sp.setdefault("patch", sp["name"])
     return out
 
 
@@ -688,14 +712,17 @@ def _contact(V, u, facet_tags, values: dict) -> Contact:
 
 
 def _spring_plates(mesh, facet_tags, springs: list[dict], length: float):
-    """Rigid plates tied to the spring patches, and their springs to the ground."""
-    bodies, ties, out = [], [], []
+    """Rigid plates tied to the spring patches (one per patch), and their springs to the ground."""
+    bodies, ties, out, centres = [], [], [], {}
     for sp in springs:
-        c = patch_centroid(mesh, facet_tags, S.MARKERS[sp["name"]].id)
-        bodies.append(RigidBody(sp["name"], c))
-        ties.append(Tie(sp["name"], sp["name"]))
+        patch = sp["patch"]
+        if patch not in centres:
+            centres[patch] = patch_centroid(mesh, facet_tags, S.MARKERS[patch].id)
+            bodies.append(RigidBody(patch, centres[patch]))
+            ties.append(Tie(patch, patch))
+        c = centres[patch]
         out.append(
-            Spring(sp["name"], sp["name"], c, GROUND, c + length * sp["direction"], sp["stiffness"])
+            Spring(sp["name"], patch, c, GROUND, c + length * sp["direction"], sp["stiffness"])
         )
     return bodies, ties, out
 
@@ -1107,7 +1134,7 @@ def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, opt
     actuator = RigidBody("actuator", origin, prescribed=True)
     springs, layout = [], spring_layout(v)
     for sp in layout:
-        c = patch_centroid(surf, stags, S.MARKERS[sp["name"]].id)
+        c = patch_centroid(surf, stags, S.MARKERS[sp["patch"]].id)
         sp["centre"] = c
         springs.append(
             Spring(

@@ -70,10 +70,11 @@ has the trapezoidal rule's period error (ωh)²/12.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import dolfinx
@@ -90,6 +91,16 @@ from .springs import GROUND, Spring, spring_response
 logger = logging.getLogger(__name__)
 
 __all__ = ["MassProperties", "RigidBody", "RigidSystem", "Tie", "mass_properties"]
+
+
+@contextlib.contextmanager
+def _timed(stats: SolveStats, name: str) -> Iterator[None]:
+    """Add the wall time of the enclosed block to ``stats.<name>`` (s), even if it raises."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        setattr(stats, name, getattr(stats, name) + time.perf_counter() - t0)
 
 
 def _left_jacobian(phi: np.ndarray) -> np.ndarray:
@@ -996,11 +1007,8 @@ class RigidSystem:
 
     # ---- SNES callbacks -------------------------------------------------------------------
     def _residual(self, snes: PETSc.SNES, x: PETSc.Vec, r: PETSc.Vec) -> None:
-        t0 = time.perf_counter()
-        try:
+        with _timed(self.stats, "residual_s"):
             self._residual_impl(x, r)
-        finally:
-            self.stats.residual_s += time.perf_counter() - t0
 
     def _residual_impl(self, x: PETSc.Vec, r: PETSc.Vec) -> None:
         self._update_state(x)
@@ -1026,36 +1034,29 @@ class RigidSystem:
                     arr[k : k + 6] = 0.0
 
     def _jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, J: PETSc.Mat, P: PETSc.Mat) -> None:
-        t0 = time.perf_counter()
-        try:
+        with _timed(self.stats, "jacobian_s"):
             self._jacobian_impl(x, J)
-        finally:
-            self.stats.jacobian_s += time.perf_counter() - t0
 
     def _jacobian_impl(self, x: PETSc.Vec, J: PETSc.Mat) -> None:
         self._update_state(x)
         J.zeroEntries()
         if self._fe:
-            t0 = time.perf_counter()
-            self._assemble_F()
-            self._assemble_K()
-            t1 = time.perf_counter()
-            self._fill_prolongation(self._P)
-            self._K.PtAP(self._P, self._C)
-            J.axpy(1.0, self._C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            t2 = time.perf_counter()
-            self.stats.fe_assembly_s += t1 - t0
-            self.stats.reduction_s += t2 - t1
+            with _timed(self.stats, "fe_assembly_s"):
+                self._assemble_F()
+                self._assemble_K()
+            with _timed(self.stats, "reduction_s"):
+                self._fill_prolongation(self._P)
+                self._K.PtAP(self._P, self._C)
+                J.axpy(1.0, self._C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             if self.contact is not None:
                 from .contact import add_to_pattern
 
                 Kc = self.contact.jacobian_matrix(self._K)
-                t3 = time.perf_counter()
-                Cc = Kc.PtAP(self._P)
-                self._contact_keys = add_to_pattern(J, Cc, self._contact_keys, self.comm)
+                with _timed(self.stats, "reduction_s"):
+                    Cc = Kc.PtAP(self._P)
+                    self._contact_keys = add_to_pattern(J, Cc, self._contact_keys, self.comm)
                 Kc.destroy()
                 Cc.destroy()
-                self.stats.reduction_s += time.perf_counter() - t3
         _, tan = self._rigid_terms(with_tangent=True)
         if self.comm.rank == 0 and len(self.bodies):
             rigid = np.arange(
@@ -1091,14 +1092,13 @@ class RigidSystem:
         x = self._x_from_state()
         self.snes.setConvergenceHistory(length=200, reset=True)
         petsc_error = None
-        t0 = time.perf_counter()
-        try:
-            self.snes.solve(None, x)
-        except PETSc.Error as err:  # e.g. MUMPS on a matrix with NaN entries
-            petsc_error = f"PETSc error {err.ierr} in the solve (a failed factorization)"
-        except ArithmeticError as err:  # a diverged iterate, e.g. a rotation vector of 1e80
-            petsc_error = f"{type(err).__name__} in the residual or Jacobian ({err})"
-        self.stats.snes_s += time.perf_counter() - t0
+        with _timed(self.stats, "snes_s"):
+            try:
+                self.snes.solve(None, x)
+            except PETSc.Error as err:  # e.g. MUMPS on a matrix with NaN entries
+                petsc_error = f"PETSc error {err.ierr} in the solve (a failed factorization)"
+            except ArithmeticError as err:  # a diverged iterate, e.g. a rotation vector of 1e80
+                petsc_error = f"{type(err).__name__} in the residual or Jacobian ({err})"
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
         history = [float(v) for v in self.snes.getConvergenceHistory()[0]]

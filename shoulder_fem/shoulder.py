@@ -891,8 +891,7 @@ def _time_split(recorder, label: str, system: RigidSystem, contact: Contact) -> 
     ``newton``: in the Newton solves in all; ``residual`` and ``jacobian``: their evaluations
     (FE assembly, contact, the reduction to the rigid bodies; within ``jacobian``:
     ``jacobian_fe_assembly`` and ``jacobian_reduction``, the products Pᵀ K P); ``linear``: the
-    rest of
-    ``newton`` (the LU factorizations and solves); ``contact``: the contact search and
+    rest of ``newton`` (the LU factorizations and solves); ``contact``: the contact search and
     assembly, part of ``residual`` and ``jacobian``.
     """
     st, cs = system.stats, contact.stats

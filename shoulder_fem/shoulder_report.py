@@ -545,12 +545,11 @@ def _compare(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
     jac = _jaccard(cpl, dec, angles, g_pair[:2])
     # the humerus's swing and where the glenoid presses on the humeral cartilage (deg)
     motion = {
-        key: {"coupled": cpl.series_at(name, angles), "decoupled": dec.series_at(name, angles)}
-        for key, name in (
-            ("humeral_swing_deg", "humeral_swing"),
-            ("humeral_cap_contact_angle_deg", "humeral_cap_contact_angle"),
-            ("humeral_cap_contact_angle_max_deg", "humeral_cap_contact_angle_max"),
-        )
+        f"{name}_deg": {
+            "coupled": cpl.series_at(name, angles),
+            "decoupled": dec.series_at(name, angles),
+        }
+        for name, _ in MOTION_SERIES
     }
     per_angle = []
     for i, a in enumerate(angles):
@@ -1006,6 +1005,14 @@ def _per_angle_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     return head, rows
 
 
+#: The humerus's motion series compared per angle (``<series>_deg`` in ``per_angle``) and
+#: their column labels: the swing and where the glenoid presses on the humeral cartilage.
+MOTION_SERIES = (
+    ("humeral_swing", "swing"),
+    ("humeral_cap_contact_angle", "contact mean"),
+    ("humeral_cap_contact_angle_max", "contact max"),
+)
+
 #: Where the Newton time went (probes ``<stepping>_time_<key>_s`` of the runs), in table order.
 TIME_SPLIT = (
     ("newton", "Newton solves, in all"),
@@ -1039,26 +1046,17 @@ def _time_rows(report: dict) -> tuple[list[str], list[list[str]]]:
 
 def _motion_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     """Per angle: the humerus's swing and the contact's place on the humeral cartilage."""
-    head = [
-        "angle deg",
-        "swing cpl deg",
-        "swing dec deg",
-        "contact mean cpl deg",
-        "contact mean dec deg",
-        "contact max cpl deg",
-        "contact max dec deg",
-    ]
+    head = ["angle deg"]
+    for _, label in MOTION_SERIES:
+        head += [f"{label} cpl deg", f"{label} dec deg"]
     rows = []
     for r in report.get("per_angle", []):
         if "humeral_swing_deg" not in r:
             continue
         rows.append([_fmt(r["angle_deg"], "g")])
-        for key in (
-            "humeral_swing_deg",
-            "humeral_cap_contact_angle_deg",
-            "humeral_cap_contact_angle_max_deg",
-        ):
-            rows[-1] += [_fmt(r[key]["coupled"], ".1f"), _fmt(r[key]["decoupled"], ".1f")]
+        for name, _ in MOTION_SERIES:
+            m = r[f"{name}_deg"]
+            rows[-1] += [_fmt(m["coupled"], ".1f"), _fmt(m["decoupled"], ".1f")]
     return head, rows
 
 

@@ -105,7 +105,7 @@ ROW_DIRECTIONS = (
 AP_DIRECTION = (0.0, 1.0, 0.0)
 #: The humerus's distal elements: vertical, downwards (they prevent abduction).
 DISTAL_DIRECTION = (0.0, 0.0, -1.0)
-#: The optional horizontal distal elements (``humerus_horizontal_stiffness``): their patch
+#: The horizontal distal elements (``humerus_horizontal_stiffness``, our addition): their patch
 #: (shared with a vertical element) and direction, lateral and anterior; together they hold
 #: the distal humerus against a horizontal swing.
 HORIZONTAL_ELEMENTS = (

@@ -105,13 +105,15 @@ ROW_DIRECTIONS = (
 AP_DIRECTION = (0.0, 1.0, 0.0)
 #: The humerus's distal elements: vertical, downwards (they prevent abduction).
 DISTAL_DIRECTION = (0.0, 0.0, -1.0)
-#: The horizontal distal elements (``humerus_horizontal_stiffness``, our addition): their patch
-#: (shared with a vertical element) and direction, lateral and anterior; together they hold
-#: the distal humerus against a horizontal swing.
-HORIZONTAL_ELEMENTS = (
-    ("humerus_distal_spring_1", (1.0, 0.0, 0.0)),
-    ("humerus_distal_spring_2", (0.0, 1.0, 0.0)),
-)
+#: The horizontal distal elements (``humerus_horizontal_stiffness``, our addition): lateral and
+#: anterior; together they hold the distal humerus against a horizontal swing. They act at the
+#: centroid of the distal section, which lies on the shaft axis: a twist about the shaft does
+#: not stretch them (on a spring patch, off the axis, they held the twist as well).
+HORIZONTAL_DIRECTIONS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+#: The distal section of the humerus (its cut face, with the vertical elements' patches): the
+#: humerus's elements act on it, and the coupled method ties one rigid plate to all of it
+#: (a potting fixture).
+DISTAL_SECTION = "humerus_distal_section"
 
 #: Displacement direction of the subscapularis origin plate: medial, along the blade.
 ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
@@ -223,11 +225,15 @@ def _entity_centroids(mesh, dim: int, entities: np.ndarray) -> tuple[np.ndarray,
     return p.mean(axis=1), area
 
 
-def patch_centroid(mesh, tags, tag: int) -> np.ndarray:
-    """Area-weighted centroid (m) of the entities of ``tags`` with value ``tag`` (collective)."""
+def patch_centroid(mesh, tags, tag) -> np.ndarray:
+    """Area-weighted centroid (m) of the entities of ``tags`` with value(s) ``tag`` (collective).
+
+    ``tag``: one value or a list of them (a surface made of several markers).
+    """
     dim = tags.dim
     n_owned = mesh.topology.index_map(dim).size_local
-    ents = tags.indices[(tags.values == tag) & (tags.indices < n_owned)]
+    chosen = np.isin(tags.values, np.atleast_1d(tag)) & (tags.indices < n_owned)
+    ents = tags.indices[chosen]
     local = np.zeros(4)
     if len(ents):
         c, a = _entity_centroids(mesh, dim, ents)
@@ -274,10 +280,12 @@ def _unit(v) -> np.ndarray:
 
 
 def spring_layout(values: dict) -> list[dict]:
-    """Every flexible element: name, patch surface, bone, direction and stiffness (N/m).
+    """Every flexible element: name, patch, plate, bone, direction and stiffness (N/m).
 
-    Several elements may share a patch (the horizontal distal elements sit on the patches of
-    two vertical ones).
+    ``patch``: the surface (a marker or a set of :data:`meshes.shoulder.SURFACE_SETS`) at whose
+    centroid the element acts; ``plate``: the surface that the coupled method ties to the
+    element's rigid plate (the scapula's elements: their patch; the humerus's: the whole distal
+    section, one plate for its 4 + 2 elements).
     """
     out = []
     for i in range(20):
@@ -308,11 +316,11 @@ def spring_layout(values: dict) -> list[dict]:
             }
         )
     if values["humerus_horizontal_stiffness"] > 0:
-        for i, (patch, d) in enumerate(HORIZONTAL_ELEMENTS):
+        for i, d in enumerate(HORIZONTAL_DIRECTIONS):
             out.append(
                 {
                     "name": f"humerus_horizontal_spring_{i + 1}",
-                    "patch": patch,
+                    "patch": DISTAL_SECTION,
                     "bone": "humerus",
                     "direction": _unit(d),
                     "stiffness": values["humerus_horizontal_stiffness"],
@@ -320,7 +328,18 @@ def spring_layout(values: dict) -> list[dict]:
             )
     for sp in out:
         sp.setdefault("patch", sp["name"])
+        sp["plate"] = DISTAL_SECTION if sp["bone"] == "humerus" else sp["patch"]
     return out
+
+
+def _marker_names(surface: str) -> tuple[str, ...]:
+    """The markers of a surface: a set of :data:`meshes.shoulder.SURFACE_SETS` or one marker."""
+    return S.SURFACE_SETS.get(surface, (surface,))
+
+
+def surface_centroid(mesh, tags, surface: str) -> np.ndarray:
+    """Area-weighted centroid (m) of a marker or a marker set (collective)."""
+    return patch_centroid(mesh, tags, [S.MARKERS[n].id for n in _marker_names(surface)])
 
 
 # ---- materials and forms --------------------------------------------------------------------
@@ -712,17 +731,19 @@ def _contact(V, u, facet_tags, values: dict) -> Contact:
 
 
 def _spring_plates(mesh, facet_tags, springs: list[dict], length: float):
-    """Rigid plates tied to the spring patches (one per patch), and their springs to the ground."""
-    bodies, ties, out, centres = [], [], [], {}
+    """Rigid plates tied to the springs' plate surfaces (one per plate), and their springs.
+
+    Each spring runs from its patch's centroid, on its plate, to the ground.
+    """
+    bodies, ties, out = [], [], []
     for sp in springs:
-        patch = sp["patch"]
-        if patch not in centres:
-            centres[patch] = patch_centroid(mesh, facet_tags, S.MARKERS[patch].id)
-            bodies.append(RigidBody(patch, centres[patch]))
-            ties.append(Tie(patch, patch))
-        c = centres[patch]
+        plate = sp["plate"]
+        if plate not in (b.name for b in bodies):
+            bodies.append(RigidBody(plate, surface_centroid(mesh, facet_tags, plate)))
+            ties += [Tie(plate, m) for m in _marker_names(plate)]
+        c = surface_centroid(mesh, facet_tags, sp["patch"])
         out.append(
-            Spring(sp["name"], patch, c, GROUND, c + length * sp["direction"], sp["stiffness"])
+            Spring(sp["name"], plate, c, GROUND, c + length * sp["direction"], sp["stiffness"])
         )
     return bodies, ties, out
 
@@ -1133,7 +1154,7 @@ def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, opt
     actuator = RigidBody("actuator", origin, prescribed=True)
     springs, layout = [], spring_layout(v)
     for sp in layout:
-        c = patch_centroid(surf, stags, S.MARKERS[sp["patch"]].id)
+        c = surface_centroid(surf, stags, sp["patch"])
         sp["centre"] = c
         springs.append(
             Spring(

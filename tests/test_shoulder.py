@@ -25,18 +25,15 @@ from shoulder_fem.rigid import hat
 from shoulder_fem.scene import load_scene
 
 FINAL, EVERY = 60.0, 10.0
-#: Decoupled vs coupled at the coarse level, 0-60 deg (measured values in the README). The
-#: bounds are the issue's medium-level ones, which coarse meets (measured: correlation 0.9999,
-#: slope 0.984, pressure 3.1 %, muscle forces 0.92 % up to 50 deg), except the muscle forces at
-#: 60 deg: there the glenoid presses on the edge of the humeral cartilage (69.8 of its 70.1 deg)
-#: and the subscapularis force, which jumps from 39 to 103 N between 50 and 60 deg, differs by
-#: 2.3 % (bound 3 %; the other two muscles 0.3 %).
+#: Decoupled vs coupled at the coarse level, 0-60 deg (measured values in the README).
+#: Measured: correlation 1.0000, slope 0.9976, pressure 0.99 %, muscle forces 0.93 % (the
+#: subscapularis at 60 deg); the bounds are the issue's medium-level ones (5 % for the pressure
+#: tightened to 3 %): the coarse level meets them at every angle.
 COARSE_TOLERANCES = {
     "von_mises_correlation_min": 0.999,
     "von_mises_slope": (0.98, 1.02),
-    "max_pressure_rel_error": 0.05,
-    "muscle_force_rel_error": 0.01,  # every muscle at 10-50 deg
-    "muscle_force_rel_error_edge": 0.03,  # every muscle at 60 deg (edge contact)
+    "max_pressure_rel_error": 0.03,
+    "muscle_force_rel_error": 0.01,
 }
 SERIES = (
     "humeral_angle",
@@ -93,7 +90,7 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
         x, y = _series(result, "humeral_angle")
         assert np.allclose(y[1:], x[1:], atol=0.011), (method, y)
         assert abs(y[0]) < 0.5
-        # the subscapularis pulls harder as the humerus turns (0.4 -> 103 N measured over
+        # the subscapularis pulls harder as the humerus turns (0.4 -> 74 N measured over
         # 0-60 deg; 0.5 N is a floor, not a fit); the contact is loaded
         _, fsub = _series(result, "subscapularis_force")
         assert np.all(np.diff(fsub) > 0) and fsub[-1] > 0.5, fsub
@@ -130,12 +127,10 @@ def test_decoupled_matches_coupled_within_the_coarse_tolerances(study):
     assert m["max_pressure_rel_error"] <= tol["max_pressure_rel_error"], m
     errors = m["muscle_force_rel_errors"]  # muscle -> {angle: relative error}
     assert set(errors) == {"infraspinatus", "subscapularis", "supraspinatus"}, errors
-    for muscle, by_angle in errors.items():
+    for by_angle in errors.values():
         assert [float(a) for a in by_angle] == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0], by_angle
-        for angle, err in by_angle.items():
-            bound = "muscle_force_rel_error" + ("_edge" if float(angle) >= 60.0 else "")
-            assert abs(err) <= tol[bound], (muscle, angle, err)
-    assert m["muscle_force_rel_error"] <= tol["muscle_force_rel_error_edge"], m
+        assert max(abs(e) for e in by_angle.values()) <= m["muscle_force_rel_error"], by_angle
+    assert m["muscle_force_rel_error"] <= tol["muscle_force_rel_error"], m
 
 
 def test_swing_and_twist_by_hand():
@@ -163,7 +158,7 @@ def test_cap_angles_by_hand():
 def test_swing_and_the_contact_on_the_humeral_cartilage(study):
     """The humerus's swing and where the glenoid presses on the humeral cartilage: the same
     with both methods (a rigid humerus's rotation against the coupled humerus's best fit;
-    measured to 0.1 deg and 0.3 deg over 0-60 deg); the swing held small by the horizontal
+    measured to 0.1 deg and 0.2 deg over 0-60 deg); the swing held small by the horizontal
     distal elements; the contact moving away from the cartilage's axis as the humerus turns,
     and never beyond the cartilage as meshed (its half-angle, the scene's 70 deg on its
     nodes)."""
@@ -175,12 +170,12 @@ def test_swing_and_the_contact_on_the_humeral_cartilage(study):
     _, swing_d = _series(dec, "humeral_swing")
     # the other method (measured: within 0.1 deg over 0-60 deg)
     assert np.allclose(swing_c, swing_d, atol=0.2), (swing_c, swing_d)
-    # held by the horizontal elements: measured 2.4 deg at most (at 60 deg); without them it
+    # held by the horizontal elements: measured 1.5 deg at most (at 60 deg); without them it
     # is 14.1 deg at 10 deg of twist (test_without_horizontal_elements_the_humerus_swings)
     assert np.all(swing_c < 3.0), swing_c
     _, mean_c = _series(cpl, "humeral_cap_contact_angle")
     _, mean_d = _series(dec, "humeral_cap_contact_angle")
-    # the other method (measured: within 0.3 deg over 0-60 deg)
+    # the other method (measured: within 0.2 deg over 0-60 deg)
     assert np.allclose(mean_c, mean_d, atol=0.5), (mean_c, mean_d)
     assert np.all(np.diff(mean_c) > 0), mean_c
     for result in (cpl, dec):
@@ -249,10 +244,10 @@ def test_scapula_suspension_stiffness_is_symmetric_positive_definite():
     assert eig.min() > 0, eig
 
 
-def test_horizontal_distal_elements_are_extra_springs_on_shared_patches():
+def test_horizontal_distal_elements_act_at_the_distal_section_centroid():
     """``humerus_horizontal_stiffness``: 0 gives the paper's 25 elements; the scene's 5 N/mm
-    adds a lateral and an anterior element on the patches of two vertical ones, horizontal,
-    unique names."""
+    adds a lateral and an anterior element, horizontal, acting at the distal section's
+    centroid; every humerus element's coupled plate is the whole distal section."""
     scene = load_scene("shoulder-internal-rotation")
     paper = scene.with_overrides(["humerus_horizontal_stiffness=0N/mm"])
     base = SH.spring_layout(paper.values())
@@ -261,18 +256,42 @@ def test_horizontal_distal_elements_are_extra_springs_on_shared_patches():
     assert [sp["name"] for sp in more[:25]] == [sp["name"] for sp in base]
     extra = more[25:]
     assert len(more) == 27 and len({sp["name"] for sp in more}) == 27
-    assert [sp["patch"] for sp in extra] == ["humerus_distal_spring_1", "humerus_distal_spring_2"]
+    assert [sp["patch"] for sp in extra] == [SH.DISTAL_SECTION] * 2
+    for sp in more:
+        assert sp["plate"] == (SH.DISTAL_SECTION if sp["bone"] == "humerus" else sp["patch"])
     for sp in extra:
         assert sp["bone"] == "humerus" and sp["stiffness"] == pytest.approx(5000.0)
         assert sp["direction"][2] == 0.0 and np.linalg.norm(sp["direction"]) == pytest.approx(1)
     assert abs(np.dot(extra[0]["direction"], extra[1]["direction"])) < 1e-12
 
 
+def test_the_distal_section_centroid_is_on_the_shaft_axis():
+    """Where the horizontal elements act: on the shaft axis of the geometry (its direction at
+    the neck-shaft angle, through the point ``head_offset`` lateral of the head centre), so a
+    twist about the shaft does not stretch them; on both meshes that carry them."""
+    scene = load_scene("shoulder-internal-rotation")
+    geometry = SH.S.geometry_from_values(scene.values())
+    lay = SH.S._layout(geometry)
+    direction, point_mm = (lay.rot @ v for v in SH.S._shaft_axis(geometry))
+    level = scene.level("coarse")
+    for variant in ("deformable", "rigid-bone"):
+        sm = SH.S.build_shoulder_mesh(MPI.COMM_WORLD, geometry, level, variant)
+        mesh, tags = (
+            (sm.mesh, sm.facet_tags)
+            if variant == "deformable"
+            else (sm.bone_surface, sm.bone_surface_tags)
+        )
+        c = 1e3 * SH.surface_centroid(mesh, tags, SH.DISTAL_SECTION) - point_mm
+        off_axis = np.linalg.norm(c - np.dot(c, direction) * direction)
+        assert off_axis < 0.05, (variant, off_axis)  # mm; the section is 22 mm across
+        assert np.dot(c, direction) == pytest.approx(120.0, abs=15.0)  # shaft_length, 120 mm
+
+
 def test_without_horizontal_elements_the_humerus_swings(study, comm_tmp):
     """The paper's 4 vertical distal elements alone (``humerus_horizontal_stiffness`` = 0):
     both methods turn the humerus to 10 deg, but its shaft swings more than 10 deg (measured
     14.1 deg, the same with both within 0.1 deg), where the scene's horizontal elements hold it
-    under 1 deg (the study fixture, measured 0.7 deg)."""
+    under 1 deg (the study fixture, measured 0.6 deg)."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(
         ["final_angle=10deg", "humerus_horizontal_stiffness=0N/mm"]
     )

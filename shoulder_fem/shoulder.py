@@ -735,13 +735,19 @@ def _spring_plates(mesh, facet_tags, springs: list[dict], length: float):
 
     Each spring runs from its patch's centroid, on its plate, to the ground.
     """
-    bodies, ties, out = [], [], []
+    bodies, ties, out, centres = [], [], [], {}
+
+    def centre(surface: str) -> np.ndarray:  # a scapular patch is its own plate: once each
+        if surface not in centres:
+            centres[surface] = surface_centroid(mesh, facet_tags, surface)
+        return centres[surface]
+
     for sp in springs:
         plate = sp["plate"]
         if plate not in (b.name for b in bodies):
-            bodies.append(RigidBody(plate, surface_centroid(mesh, facet_tags, plate)))
+            bodies.append(RigidBody(plate, centre(plate)))
             ties += [Tie(plate, m) for m in _marker_names(plate)]
-        c = surface_centroid(mesh, facet_tags, sp["patch"])
+        c = centre(sp["patch"])
         out.append(
             Spring(sp["name"], plate, c, GROUND, c + length * sp["direction"], sp["stiffness"])
         )

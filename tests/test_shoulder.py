@@ -168,8 +168,8 @@ def test_swing_and_the_contact_on_the_humeral_cartilage(study):
     assert dec.probes["humeral_cap_half_angle_deg"] == pytest.approx(half)
     _, swing_c = _series(cpl, "humeral_swing")
     _, swing_d = _series(dec, "humeral_swing")
-    # the other method (measured: within 0.1 deg over 0-60 deg)
-    assert np.allclose(swing_c, swing_d, atol=0.2), (swing_c, swing_d)
+    # the other method (measured: within 0.093 deg over 0-60 deg, at 30 deg)
+    assert np.allclose(swing_c, swing_d, atol=0.1), (swing_c, swing_d)
     # held by the horizontal elements: measured 1.5 deg at most (at 60 deg); without them it
     # is 14.1 deg at 10 deg of twist (test_without_horizontal_elements_the_humerus_swings)
     assert np.all(swing_c < 3.0), swing_c
@@ -283,8 +283,12 @@ def test_the_distal_section_centroid_is_on_the_shaft_axis():
         )
         c = 1e3 * SH.surface_centroid(mesh, tags, SH.DISTAL_SECTION) - point_mm
         off_axis = np.linalg.norm(c - np.dot(c, direction) * direction)
-        assert off_axis < 0.05, (variant, off_axis)  # mm; the section is 22 mm across
-        assert np.dot(c, direction) == pytest.approx(120.0, abs=15.0)  # shaft_length, 120 mm
+        # mm: on the axis by the patches' symmetry (measured 0.0005 mm, round-off of gmsh's
+        # facets; the section is 22 mm across)
+        assert off_axis < 0.005, (variant, off_axis)
+        # the geometry's shaft_length (120 mm): the section is cut that far along the axis
+        # from the head centre's level (measured 120.000 mm)
+        assert np.dot(c, direction) == pytest.approx(120.0, abs=0.01)
 
 
 def test_without_horizontal_elements_the_humerus_swings(study, comm_tmp):

@@ -23,6 +23,7 @@ CPU time) and a chart of the same (rank 0). It asserts nothing.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import shutil
 import tempfile
@@ -33,6 +34,7 @@ import numpy as np
 from mpi4py import MPI
 
 from shoulder_fem import api
+from shoulder_fem.cli import setup_logging
 from shoulder_fem.plots import _save, plt
 from shoulder_fem.results import atomic_write_json
 from shoulder_fem.scene import load_scene
@@ -87,8 +89,19 @@ def main(argv: list[str] | None = None) -> int:
         help="scapula,humerus modulus factors per coupled run (default: %(default)s)",
     )
     parser.add_argument("--out", type=Path, required=True, help="folder for the JSON and chart")
+    parser.add_argument(
+        "--chart-only", action="store_true", help="redraw the chart from the JSON in --out"
+    )
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    if args.chart_only:
+        path = args.out / f"shoulder_bone_compliance_{args.level}.json"
+        if not path.is_file():
+            parser.error(f"--chart-only: {path} does not exist (run without --chart-only first)")
+        _chart(json.loads(path.read_text()), path.with_suffix(".png"))
+        return 0
+    setup_logging(1, False)  # the package's progress lines, rank 0; the form compiler quiet
+    log.handlers[:] = logging.getLogger("shoulder_fem").handlers
+    log.setLevel(logging.INFO)
     comm = MPI.COMM_WORLD
     if comm.rank == 0 and not args.out.is_dir():
         parser.error(f"--out {args.out}: no such folder")
@@ -142,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _chart(result: dict, path: Path) -> None:
-    fig, axes = plt.subplots(1, len(SERIES), figsize=(4.2 * len(SERIES), 3.8), sharex=True)
+    fig, axes = plt.subplots(
+        1, len(SERIES), figsize=(4.2 * len(SERIES), 3.9), sharex=True, constrained_layout=True
+    )
     for ax, (name, (label, _)) in zip(axes, SERIES.items(), strict=True):
         for i, row in enumerate(result["variants"]):
             s = row["series"][name]
@@ -153,6 +168,7 @@ def _chart(result: dict, path: Path) -> None:
                 color=f"C{i}",
                 label=f"E x {row['scapula_modulus_factor']:g} scapula, "
                 f"x {row['humerus_modulus_factor']:g} humerus",
+                ms=4,
             )
         if name.endswith("_force"):
             for y in (-1.0, 1.0):  # the paper's criterion for the muscle forces
@@ -160,9 +176,10 @@ def _chart(result: dict, path: Path) -> None:
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_title(label)
         ax.set_xlabel("internal rotation (deg)")
-        ax.set_ylabel("(decoupled - coupled) / coupled (%)")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
+    axes[0].set_ylabel("(decoupled - coupled) / coupled (%)")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=5, fontsize=8)
     fig.suptitle(
         f"{result['scene']} ({result['level']}): the decoupling's error against the bones' "
         "stiffness (part 1's rigid bones = E x infinity)",

@@ -3,13 +3,16 @@
 ``main(argv) -> int``; heavy imports (dolfinx, PETSc) happen inside the commands so that
 ``--help`` is instant. Under ``mpirun -n N`` every command behaves the same and writes its
 output once. Errors in the input print one line naming what is wrong and exit with status 2;
-a diverged solve exits with status 3 after writing the completed steps.
+a diverged solve exits with status 3 after writing the completed steps. SIGTERM (``kill``, a
+batch system's time limit) unwinds the run like an error: the unfinished output folder is
+removed, and the command exits with status 143.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from pathlib import Path
 
@@ -19,6 +22,19 @@ logger = logging.getLogger("shoulder_fem")
 
 EXIT_INPUT = 2
 EXIT_SOLVER = 3
+EXIT_TERMINATED = 128 + signal.SIGTERM  # 143, the shell's status for a process ended by SIGTERM
+
+
+class _Terminated(SystemExit):
+    """Raised by the SIGTERM handler.
+
+    Not an ``Exception``: no ``except Exception`` stops it on its way out, and every ``with``
+    block (the output folders) unwinds.
+    """
+
+
+def _raise_on_sigterm(signum, frame) -> None:
+    raise _Terminated(EXIT_TERMINATED)
 
 
 class _RankFilter(logging.Filter):
@@ -120,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     from .results import OutputError
     from .scene import SceneError
 
+    signal.signal(signal.SIGTERM, _raise_on_sigterm)
     try:
         return {
             "scenes": cmd_scenes,
@@ -134,6 +151,11 @@ def main(argv: list[str] | None = None) -> int:
     except _SolverFailure as err:
         _error(str(err))
         return EXIT_SOLVER
+    except _Terminated:
+        out = getattr(args, "out", None)
+        where = f": the unfinished output {out} was removed" if out else ""
+        _error(f"stopped by SIGTERM{where}")
+        return EXIT_TERMINATED
 
 
 class _SolverFailure(RuntimeError):

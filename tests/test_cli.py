@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -116,3 +118,26 @@ def test_driver_script(tmp_path):
     # ρ = 1800 kg/m³, r_out = 0.32 m, r_in = 0.02 m: ρΩ²(r_out² − r_in²)/2 = 91.8 Ω² Pa.
     for rate, value in zip(rates, stress, strict=True):
         assert value == pytest.approx(91.8 * rate**2, rel=1e-6)
+
+
+def test_sigterm_removes_the_unfinished_output(tmp_path: Path) -> None:
+    """``kill`` during a run: the command exits with 143 and says so, and no staging folder
+    (``OUT.partial-*``) or half-written ``OUT`` is left behind."""
+    out = tmp_path / "dec"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", "run", "shoulder-internal-rotation"]
+        + ["--method", "decoupled", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120.0
+    while not list(tmp_path.glob("dec.partial-*")):  # the run has started writing
+        assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
+        time.sleep(0.1)
+    time.sleep(1.0)  # well before the end (the run takes about a minute)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert f"stopped by SIGTERM: the unfinished output {out} was removed" in err
+    assert list(tmp_path.iterdir()) == []

@@ -30,6 +30,7 @@ bench: setup
 	$(PY) benchmarks/stability_map.py --out benchmarks/results
 	$(PY) benchmarks/speed_accuracy.py --out benchmarks/results
 	$(PY) benchmarks/contact.py --out benchmarks/results
+	$(PY) benchmarks/shoulder_bone_compliance.py --level coarse --out benchmarks/results
 
 clean:
 	rm -rf results .pytest_cache

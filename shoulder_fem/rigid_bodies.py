@@ -741,10 +741,15 @@ class RigidSystem:
             else:
                 jl = _left_jacobian(self._phi[b])
                 r = (self._X[owned] - body.reference_point) @ body.rotation.T
-            for node, ri in zip(owned, r, strict=True):
-                block = np.hstack([np.eye(3), -hat(ri) @ jl])
-                rows = self._row0 + 3 * node + np.arange(3, dtype=PETSc.IntType)
-                P.setValues(rows, cols, block.ravel())
+            if len(owned) == 0:
+                continue
+            # every tied row has the body's 6 columns: one dense (3 n) x 6 block, one call
+            # (a call per node was two thirds of part 1's reduction time, measured at coarse)
+            block = np.empty((len(owned), 3, 6))
+            block[:, :, :3] = np.eye(3)
+            block[:, :, 3:] = -hats(r) @ jl
+            rows = (self._row0 + 3 * np.asarray(owned)[:, None] + np.arange(3)).ravel()
+            P.setValues(rows.astype(PETSc.IntType), cols, block.reshape(-1, 6))
         P.assemble()
 
     def _create_jacobian(self) -> PETSc.Mat:

@@ -734,6 +734,8 @@ class RigidSystem:
     def _fill_prolongation(self, P: PETSc.Mat) -> None:
         """Tied rows of P at the current rotations: [I, -hat(r_i) J_l(φ)]."""
         for b, owned in enumerate(self._tied_owned):
+            if len(owned) == 0:
+                continue
             cols = self._rigid_cols(b)
             body = self.bodies[b]
             if self.linear_ties:
@@ -741,8 +743,6 @@ class RigidSystem:
             else:
                 jl = _left_jacobian(self._phi[b])
                 r = (self._X[owned] - body.reference_point) @ body.rotation.T
-            if len(owned) == 0:
-                continue
             # every tied row has the body's 6 columns: one dense (3 n) x 6 block, one call
             # (a call per node was two thirds of part 1's reduction time, measured at coarse)
             block = np.empty((len(owned), 3, 6))

@@ -366,19 +366,15 @@ def _muscle_forms(u, w, dx) -> dict:
 MODULUS_FACTORS = {"scapula": "scapula_modulus_factor", "humerus": "humerus_modulus_factor"}
 
 
-def bone_fields(mesh, image) -> tuple[dolfinx.fem.Function, dolfinx.fem.Function]:
-    """(density kg/m^3, E Pa) as P1 fields sampled from the image at the mesh nodes."""
-    return ct.nodal_modulus(mesh, image)
+def bone_fields(mesh, cell_tags, image, values: dict):
+    """(density kg/m^3 as a P1 field, E Pa as a UFL field) of the bones.
 
-
-def bone_modulus(mesh, cell_tags, image, values: dict):
-    """(density kg/m^3, E Pa as a UFL field): the image's E times each bone's modulus factor.
-
-    The factor is a cell-wise (DG0) field, 1 outside the bones, so that it is exact on each
-    bone's cells whatever the partition (a node-wise factor would need the bone's cells on the
-    node's owner).
+    Both sampled from the image at the mesh nodes (E = E0 (rho/rho0)^2); E times each bone's
+    modulus factor (``MODULUS_FACTORS``). The factor is a cell-wise (DG0) field, 1 outside the
+    bones, so that it is exact on each bone's cells whatever the partition (a node-wise factor
+    would need the bone's cells on the node's owner).
     """
-    rho, E = bone_fields(mesh, image)
+    rho, E = ct.nodal_modulus(mesh, image)
     factor = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)), name="modulus_factor")
     factor.x.array[:] = 1.0
     for body, key in MODULUS_FACTORS.items():
@@ -784,7 +780,7 @@ def run_coupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, optio
     u = dolfinx.fem.Function(V, name="displacement")
     w = ufl.TestFunction(V)
     dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=_quadrature(v))
-    rho, E = bone_modulus(mesh, ct_, model.image, v)
+    rho, E = bone_fields(mesh, ct_, model.image, v)
     bone = materials.SaintVenantKirchhoff(E, materials.BONE_NU)
     F = _soft_residual(u, w, dx)
     F += vp.internal_power_finite(bone, u, w, dx(S.HUMERUS.id))
@@ -1298,7 +1294,7 @@ def _part2(model, recorder, fields_dir, transfer, points, layout, ref, options, 
     u_prev = dolfinx.fem.Function(V)
     w = ufl.TestFunction(V)
     dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=_quadrature(v))
-    rho, E = bone_modulus(mesh, ct_, model.image, v)
+    rho, E = bone_fields(mesh, ct_, model.image, v)
     bone = materials.LinearElastic(E, materials.BONE_NU)
     a0 = dolfinx.fem.Constant(mesh, np.zeros(3))
     om = dolfinx.fem.Constant(mesh, np.zeros(3))

@@ -44,13 +44,13 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from shoulder_fem.contact import Contact, ContactPair, MeshSurface
+from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
+from shoulder_fem.engine.solver import NonlinearSolver
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.io.resources import ResourceMonitor, blas_library, thread_settings
+from shoulder_fem.io.results import atomic_write_json
 from shoulder_fem.meshes import contact_bodies as cb
-from shoulder_fem.resources import ResourceMonitor, blas_library, thread_settings
-from shoulder_fem.results import atomic_write_json
-from shoulder_fem.solver import NonlinearSolver
 
 E, NU = 1.0e9, 0.3
 LOWER, UPPER = (1.0, 1.0, 0.5), (0.9, 0.9, 0.5)
@@ -246,7 +246,7 @@ def plot(points: list[dict], path: Path, ranks: int, extra: list[dict] = ()) -> 
     """
     import matplotlib.pyplot as plt
 
-    from shoulder_fem.plots import _save
+    from shoulder_fem.io.plots import save_figure
 
     fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(17, 4.8))
     colors = {"segments": "C0", "points": "C2"}
@@ -322,7 +322,7 @@ def plot(points: list[dict], path: Path, ranks: int, extra: list[dict] = ()) -> 
     ax3.set_ylim(0, 110)
     ax3.set_ylabel("share of one Newton iteration [%]")
     ax3.set_title("shares (contact % on top; dashed: contact target)", fontsize=10)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,8 +35,8 @@ from mpi4py import MPI
 
 from shoulder_fem import api
 from shoulder_fem.cli import setup_logging
-from shoulder_fem.plots import _save, plt
-from shoulder_fem.results import atomic_write_json
+from shoulder_fem.io.plots import plt, save_figure
+from shoulder_fem.io.results import atomic_write_json
 from shoulder_fem.scene import load_scene
 
 SCENE = "shoulder-internal-rotation"
@@ -185,7 +185,7 @@ def _chart(result: dict, path: Path) -> None:
         "stiffness (part 1's rigid bones = E x infinity)",
         fontsize=9,
     )
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 if __name__ == "__main__":

@@ -23,10 +23,10 @@ import numpy as np
 from mpi4py import MPI
 
 from shoulder_fem import RunFailed, load_scene, run
-from shoulder_fem.api import _families
-from shoulder_fem.compare import relative_difference, series_metrics
-from shoulder_fem.resources import blas_library
-from shoulder_fem.results import atomic_write_json
+from shoulder_fem.families import family_names
+from shoulder_fem.io.compare import relative_difference, series_metrics
+from shoulder_fem.io.resources import blas_library
+from shoulder_fem.io.results import atomic_write_json
 
 #: scene → (kind of key result, its name, overrides that keep the sweep affordable)
 SCENES = {
@@ -64,7 +64,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     comm = MPI.COMM_WORLD
     logging.basicConfig(level=logging.ERROR)
-    families = _families()
     scratch = Path(comm.bcast(tempfile.mkdtemp(prefix="sfem-sa-") if comm.rank == 0 else None))
     if comm.rank == 0:
         print(f"BLAS: {blas_library()}; ranks: {comm.size}", flush=True)
@@ -74,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"speed_accuracy: no key result defined for scene '{name}'")
         kind, key, overrides = SCENES[name]
         scene = load_scene(name)
-        if scene.family not in families:
+        if scene.family not in family_names():
             if comm.rank == 0:
                 print(f"{name}: family '{scene.family}' cannot run yet, skipped", flush=True)
             continue

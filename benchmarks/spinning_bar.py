@@ -22,9 +22,9 @@ from pathlib import Path
 from mpi4py import MPI
 
 from shoulder_fem import load_scene, run
-from shoulder_fem.compare import series_metrics
-from shoulder_fem.resources import blas_library, thread_settings
-from shoulder_fem.results import atomic_write_json
+from shoulder_fem.io.compare import series_metrics
+from shoulder_fem.io.resources import blas_library, thread_settings
+from shoulder_fem.io.results import atomic_write_json
 
 METHODS = ("coupled", "decoupled")
 
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         "ratios": ratios,
     }
     if comm.rank == 0:
-        from shoulder_fem import plots
+        from shoulder_fem.io import plots
 
         args.out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(args.out / "spinning_bar.json", record)

@@ -24,9 +24,9 @@ import numpy as np
 from mpi4py import MPI
 
 from shoulder_fem import RunFailed, load_scene, run
-from shoulder_fem.compare import series_metrics
-from shoulder_fem.resources import blas_library
-from shoulder_fem.results import atomic_write_json
+from shoulder_fem.io.compare import series_metrics
+from shoulder_fem.io.resources import blas_library
+from shoulder_fem.io.results import atomic_write_json
 
 VARIANTS = ("paper", "spin-softening", "stress-stiffening")
 

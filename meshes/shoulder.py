@@ -430,7 +430,7 @@ class ShoulderGeometry:
             raise ValueError(
                 f"muscle_thickness = {mm(self.muscle_thickness)}: must lie in [3, 20] mm"
             )
-        _layout(self)  # raises ValueError for footprints off the bone
+        layout(self)  # raises ValueError for footprints off the bone
 
 
 # ---------------------------------------------------------------------------- layout (numpy)
@@ -503,7 +503,7 @@ _ORIGIN_PLACES = {
 }
 
 
-def _layout(g: ShoulderGeometry) -> _Layout:
+def layout(g: ShoulderGeometry) -> _Layout:
     """Positions of every feature (mm), checking footprints lie on their bone."""
     rot = _rot_z(g.glenoid_version) @ _rot_y(-g.glenoid_inclination)
     x_lat, x_med = _blade_x(g)
@@ -525,7 +525,7 @@ def _layout(g: ShoulderGeometry) -> _Layout:
     alpha = g.humeral_cartilage_angle
     length = x_lat - x_med
     spring_zone = x_med + 24.0  # medial strip kept for the stabiliser springs
-    s_dir, s_base = _shaft_axis(g)
+    s_dir, s_base = shaft_axis(g)
     for muscle in MUSCLES:
         fx, fz, side = _ORIGIN_PLACES[muscle]
         ol = getattr(g, f"{muscle}_origin_length") * _MM
@@ -612,7 +612,7 @@ def _layout(g: ShoulderGeometry) -> _Layout:
                 lay.spring_points.append(_blade_point(g, lay, x, z, side))
     lay.ap_point = _blade_point(g, lay, x_med + 34.0, z_bot + 0.5 * (z_top - z_bot) - 14.0, +1)
     # Distal humerus: axis and 4 spring patches (anterior, lateral, posterior, medial).
-    s, base = _shaft_axis(g)
+    s, base = shaft_axis(g)
     centre = base + g.shaft_length * _MM * s
     e1 = _unit(np.cross(s, (0.0, 1.0, 0.0)))  # in the plane of the shaft and head axis
     e2 = np.cross(s, e1)
@@ -624,7 +624,7 @@ def _layout(g: ShoulderGeometry) -> _Layout:
     return lay
 
 
-def _shaft_axis(g: ShoulderGeometry) -> tuple[np.ndarray, np.ndarray]:
+def shaft_axis(g: ShoulderGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Distal shaft direction and the shaft-axis point level with the head centre (glenoid frame).
 
     The angle between the articular axis (-x) and the shaft is the neck-shaft angle; the point
@@ -797,7 +797,7 @@ def build_model(g: ShoulderGeometry, sizes: dict) -> dict:
     g.validate()
     check_sizes(sizes)
     t0 = time.perf_counter()
-    lay = _layout(g)
+    lay = layout(g)
     gmsh.model.add("shoulder")
     occ = gmsh.model.occ
 
@@ -805,7 +805,7 @@ def build_model(g: ShoulderGeometry, sizes: dict) -> dict:
     rb, rh = g.humeral_bone_radius * _MM, g.articular_radius * _MM
     r_sub = g.subchondral_radius * _MM
     shift = g.humeral_shift  # anatomical centre (non-zero for a prosthetic head only)
-    s, base = _shaft_axis(g)
+    s, base = shaft_axis(g)
     base = base + shift
     head = occ.addSphere(0, 0, 0, r_sub)
     r_meta = _META_RADIUS * rb

@@ -12,52 +12,18 @@ output folder is written once).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from mpi4py import MPI
 
-from .scene import Scene, SceneError, load_scene
+from shoulder_fem.families import family, family_names
+from shoulder_fem.families.base import Family, RunContext
+from shoulder_fem.scene import Scene, SceneError, load_scene
 
 logger = logging.getLogger(__name__)
 
 METHODS = ("coupled", "decoupled")
-
-
-@dataclass(frozen=True)
-class Family:
-    """How a scene family is built and run by each method."""
-
-    build: Callable  # (scene, level, comm) -> model
-    methods: dict[str, Callable]  # method -> run(model, recorder, monitor, fields_dir, options)
-    dofs: Callable  # model -> number of displacement DOFs (global)
-    #: build takes the method too: (scene, level, comm, method) (each method meshes its own)
-    method_build: bool = False
-
-
-def _families() -> dict[str, Family]:
-    from . import driven_body, hertz, shoulder, tied_block, tumbling
-    from .methods import coupled, decoupled
-
-    def driven_dofs(model) -> int:
-        V = driven_body.vector_space(model)
-        return V.dofmap.index_map.size_global * V.dofmap.index_map_bs
-
-    return {
-        "driven-body": Family(
-            build=driven_body.build_driven_body,
-            methods={
-                "coupled": coupled.run_driven_body,
-                "decoupled": decoupled.run_driven_body,
-            },
-            dofs=driven_dofs,
-        ),
-        "tumbling-body": tumbling.family(),
-        "tied-block": tied_block.family(),
-        "hertz": hertz.family(),
-        "shoulder": shoulder.family(),
-    }
 
 
 class RunFailed(RuntimeError):
@@ -84,14 +50,14 @@ class Result:
     @classmethod
     def load(cls, folder: str | Path) -> Result:
         """Read a run's output folder."""
-        from .results import load_summary
+        from shoulder_fem.io.results import load_summary
 
         return cls(load_summary(folder), Path(folder))
 
 
 def _make_parent(out: Path, comm: MPI.Comm) -> None:
     """Create ``out``'s parent folders on rank 0; every rank raises the same error on failure."""
-    from .results import OutputError
+    from shoulder_fem.io.results import OutputError
 
     error = None
     if comm.rank == 0:
@@ -111,17 +77,18 @@ def check_method(method: str) -> str:
     return method
 
 
-def check_scene_methods(scene: Scene, methods: tuple[str, ...] = METHODS) -> None:
-    """Raise :class:`SceneError` unless ``scene``'s family runs every one of ``methods``."""
-    families = _families()
-    if scene.family not in families:
+def scene_family(scene: Scene, methods: tuple[str, ...] = METHODS) -> Family:
+    """``scene``'s family; :class:`SceneError` unless it is known and runs every ``methods``."""
+    if scene.family not in family_names():
         raise SceneError(f"{scene.source}: unknown scene family '{scene.family}'")
-    missing = [m for m in methods if m not in families[scene.family].methods]
+    fam = family(scene.family)
+    missing = [m for m in methods if m not in fam.methods]
     if missing:
         raise SceneError(
             f"{scene.source}: scene '{scene.name}' has no {' or '.join(missing)} method "
-            f"(it has: {', '.join(families[scene.family].methods)})"
+            f"(it has: {', '.join(fam.methods)})"
         )
+    return fam
 
 
 def run(
@@ -145,18 +112,14 @@ def run(
     Returns:
         The run's summary.
     """
-    from .resources import ResourceMonitor, blas_library, thread_settings
-    from .results import OutputDir, Recorder
-    from .solver import ConvergenceError
+    from shoulder_fem.engine.solver import ConvergenceError
+    from shoulder_fem.io.resources import ResourceMonitor, blas_library, thread_settings
+    from shoulder_fem.io.results import OutputDir, Recorder
 
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
     check_method(method)
-    families = _families()
-    if scene.family not in families:
-        raise SceneError(f"{scene.source}: unknown scene family '{scene.family}'")
-    family = families[scene.family]
-    check_scene_methods(scene, (method,))
+    fam = scene_family(scene, (method,))
     level = level or scene.default_level
     scene.level(level)  # unknown level → SceneError now
     out = Path(out)
@@ -170,17 +133,15 @@ def run(
         recorder.extra("blas", blas_library())
         recorder.extra("threads", thread_settings())
         with monitor.stage("mesh"):
-            if family.method_build:
-                model = family.build(scene, level, comm, method)
-            else:
-                model = family.build(scene, level, comm)
-        recorder.extra("dofs", family.dofs(model))
+            model = fam.build(scene, level, comm, method)
+        dofs = fam.dofs(model)
+        recorder.extra("dofs", dofs)
         logger.info(
             "%s / %s / %s: %d DOFs on %d rank(s)",
             scene.name,
             method,
             level,
-            family.dofs(model),
+            dofs,
             comm.size,
         )
         fields = outdir.path / "fields"
@@ -190,7 +151,7 @@ def run(
         failure = None
         try:
             with monitor.stage(method):
-                family.methods[method](model, recorder, monitor, fields, solver_options)
+                fam.methods[method](model, RunContext(recorder, monitor, fields, solver_options))
         except ConvergenceError as err:
             recorder.set_status("failed", str(err))
             failure = err

@@ -14,7 +14,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.api import run
-from shoulder_fem.contact import (
+from shoulder_fem.engine.contact import (
     Contact,
     ContactError,
     ContactPair,
@@ -23,13 +23,13 @@ from shoulder_fem.contact import (
     Sphere,
     penalty_law,
 )
+from shoulder_fem.engine.solver import ConvergenceError, NonlinearSolver, StepperStats, march
+from shoulder_fem.families.hertz import hertz_solution
 from shoulder_fem.forms import contact as fc
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
-from shoulder_fem.hertz import hertz_solution
 from shoulder_fem.meshes import contact_bodies as cb
 from shoulder_fem.scene import load_scene
-from shoulder_fem.solver import ConvergenceError, NonlinearSolver, StepperStats, march
 
 E, NU = 1.0e9, 0.3
 BOTTOM, TOP, XMIN, YMIN = 1, 2, 3, 4
@@ -504,7 +504,7 @@ def test_failing_contact_step_is_cut_back():
     """A ball driven to its full approach in one step with at most 3 Newton iterations does
     not converge (the active set keeps changing); march cuts the step back and reaches the
     same state as a run in small steps."""
-    from shoulder_fem import hertz
+    from shoulder_fem.families import hertz
 
     model = hertz.build(load_scene("hertz"), "coarse", MPI.COMM_WORLD)
     delta = model.theory().approach
@@ -643,8 +643,8 @@ def test_rigid_plate_presses_column_through_contact():
     springs) is pushed by a force F onto a column (ν = 0, base fixed) through contact, the plate's
     bottom being the (rigid) master: the plate moves by F H/(E A) + F/(ε A), the contact force
     is F, and the plate's balance (tie + springs + load) closes to the solver tolerance."""
-    from shoulder_fem.rigid_bodies import RigidBody, RigidSystem, Tie
-    from shoulder_fem.springs import GROUND, Spring
+    from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+    from shoulder_fem.engine.springs import GROUND, Spring
 
     a, H, t = 0.5, 1.0, 0.2
     mesh, _, ft = cb.build_two_blocks(

@@ -11,7 +11,7 @@ from _util import assert_same_probes
 from mpi4py import MPI
 
 from shoulder_fem import load_scene, run
-from shoulder_fem.compare import series_metrics
+from shoulder_fem.io.compare import series_metrics
 
 VARIANTS = ("paper", "spin-softening", "stress-stiffening")
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from shoulder_fem.meshes import density as D
+from shoulder_fem.io import ct as D
 
 
 def _box_mesh(comm):

@@ -21,7 +21,7 @@ import pytest
 from mpi4py import MPI
 
 import shoulder_fem.api as api
-from shoulder_fem import tumbling
+from shoulder_fem.families import tumbling
 from shoulder_fem.scene import SceneError, load_scene
 
 
@@ -70,10 +70,10 @@ def test_rigid_reference_matches_the_analytic_flip_period():
 
 def test_newton_failure_raises_convergence_error():
     """One Newton iteration cannot reach the tolerance: ConvergenceError names the step."""
-    from shoulder_fem.floating import FloatingBody
+    from shoulder_fem.engine.floating import FloatingBody
+    from shoulder_fem.engine.solver import ConvergenceError
     from shoulder_fem.forms.materials import SaintVenantKirchhoff
     from shoulder_fem.meshes.box import build_box
-    from shoulder_fem.solver import ConvergenceError
 
     mesh = build_box(MPI.COMM_WORLD, (0.04, 0.03, 0.02), (2, 2, 1))
     body = FloatingBody(mesh, 1, 1800.0, SaintVenantKirchhoff(15e6, 0.3), max_iterations=1)

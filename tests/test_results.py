@@ -22,14 +22,14 @@ import pytest
 from mpi4py import MPI
 
 from shoulder_fem import __version__
-from shoulder_fem.resources import (
+from shoulder_fem.io.resources import (
     MB,
     ResourceMonitor,
     blas_library,
     dir_size_bytes,
     thread_settings,
 )
-from shoulder_fem.results import (
+from shoulder_fem.io.results import (
     SUMMARY_NAME,
     FieldWriter,
     OutputDir,
@@ -312,7 +312,7 @@ def test_resource_monitor_excludes_scratch_and_falls_back(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Without the HWM reset, stages report the process peak; scratch is not a result."""
-    import shoulder_fem.resources as resources
+    import shoulder_fem.io.resources as resources
 
     monkeypatch.setattr(resources, "_reset_hwm", lambda: False)
     (tmp_path / "scratch").mkdir()
@@ -377,7 +377,7 @@ def test_blas_library_names_existing_file() -> None:
 def test_blas_library_does_not_initialise_petsc() -> None:
     """Safe on one rank: PETSc's libraries are mapped, PETSc itself is not initialised."""
     code = (
-        "import sys; from shoulder_fem.resources import blas_library; text = blas_library(); "
+        "import sys; from shoulder_fem.io.resources import blas_library; text = blas_library(); "
         "assert 'petsc4py.PETSc' not in sys.modules; print(text)"
     )
     done = subprocess.run(

@@ -13,7 +13,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ellipk
 
-from shoulder_fem.rigid import (
+from shoulder_fem.engine.rigid import (
     NewtonEuler,
     RigidState,
     SpinUp,

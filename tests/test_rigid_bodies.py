@@ -12,9 +12,9 @@ import ufl
 from _util import quadratic_orders, taylor_rates
 from mpi4py import MPI
 
-from shoulder_fem.rigid import log_so3, rotation_about
-from shoulder_fem.rigid_bodies import RigidBody, RigidSystem, Tie
-from shoulder_fem.springs import GROUND, Spring, spring_response
+from shoulder_fem.engine.rigid import log_so3, rotation_about
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.springs import GROUND, Spring, spring_response
 
 pytestmark = pytest.mark.mpi
 
@@ -237,8 +237,8 @@ def test_linear_ties_make_a_linear_problem():
 def test_mass_properties_of_a_bar():
     """A 10 × 10 × 40 mm bar of density 1800 kg/m³ on [-5, 5]² × [0, 40] mm:
     m = ρ a² L, G = (0, 0, L/2), I_xx = I_yy = m (a² + L²)/12, I_zz = m a²/6."""
+    from shoulder_fem.engine.mass import mass_properties
     from shoulder_fem.meshes.block import build_block
-    from shoulder_fem.rigid_bodies import mass_properties
 
     mesh, _, _ = build_block(MPI.COMM_WORLD, 0.01, 0.04, 2, 4)
     props = mass_properties(mesh, 1800.0, ufl.dx(domain=mesh, metadata={"quadrature_degree": 2}))

@@ -25,9 +25,10 @@ from _util import quadratic_orders, taylor_rates
 from mpi4py import MPI
 from test_rigid_bodies import six_springs, small_block
 
-from shoulder_fem.rigid import NewtonEuler, hat, log_so3, rotation_about
-from shoulder_fem.rigid_bodies import RigidBody, RigidSystem, Tie, mass_properties
-from shoulder_fem.springs import GROUND, Spring
+from shoulder_fem.engine.mass import mass_properties
+from shoulder_fem.engine.rigid import NewtonEuler, hat, log_so3, rotation_about
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.springs import GROUND, Spring
 
 
 def discrete_period(x: np.ndarray, h: float) -> float:

@@ -21,9 +21,11 @@ import pytest
 import ufl
 from mpi4py import MPI
 
-from shoulder_fem import api, shoulder_report
-from shoulder_fem import shoulder as SH
-from shoulder_fem.rigid import hat
+from shoulder_fem import api
+from shoulder_fem.engine.rigid import hat
+from shoulder_fem.families.shoulder import model as SH
+from shoulder_fem.families.shoulder import report as shoulder_report
+from shoulder_fem.meshes import shoulder as MS
 from shoulder_fem.scene import load_scene
 
 FINAL, EVERY = 60.0, 10.0
@@ -230,14 +232,14 @@ def test_scapula_suspension_stiffness_is_symmetric_positive_definite():
     comm = MPI.COMM_WORLD
     scene = load_scene("shoulder-internal-rotation")
     values = scene.values()
-    geometry = SH.S.geometry_from_values(values)
-    sm = SH.S.build_shoulder_mesh(comm, geometry, scene.level("coarse"), "scapula")
-    ref = SH.patch_centroid(sm.mesh, sm.facet_tags, SH.S.MARKERS["glenoid_cartilage_bone"].id)
+    geometry = MS.geometry_from_values(values)
+    sm = MS.build_shoulder_mesh(comm, geometry, scene.level("coarse"), "scapula")
+    ref = SH.patch_centroid(sm.mesh, sm.facet_tags, MS.MARKERS["glenoid_cartilage_bone"].id)
     K = np.zeros((6, 6))
     springs = [sp for sp in SH.spring_layout(values) if sp["bone"] == "scapula"]
     assert len(springs) == 21
     for sp in springs:
-        c = SH.patch_centroid(sm.mesh, sm.facet_tags, SH.S.MARKERS[sp["name"]].id)
+        c = SH.patch_centroid(sm.mesh, sm.facet_tags, MS.MARKERS[sp["name"]].id)
         B = np.hstack([np.eye(3), -hat(c - ref)])
         n = sp["direction"]
         K += sp["stiffness"] * B.T @ np.outer(n, n) @ B
@@ -272,12 +274,12 @@ def test_the_distal_section_centroid_is_on_the_shaft_axis():
     the neck-shaft angle, through the point ``head_offset`` lateral of the head centre), so a
     twist about the shaft does not stretch them; on both meshes that carry them."""
     scene = load_scene("shoulder-internal-rotation")
-    geometry = SH.S.geometry_from_values(scene.values())
-    lay = SH.S._layout(geometry)
-    direction, point_mm = (lay.rot @ v for v in SH.S._shaft_axis(geometry))
+    geometry = MS.geometry_from_values(scene.values())
+    lay = MS.layout(geometry)
+    direction, point_mm = (lay.rot @ v for v in MS.shaft_axis(geometry))
     level = scene.level("coarse")
     for variant in ("deformable", "rigid-bone"):
-        sm = SH.S.build_shoulder_mesh(MPI.COMM_WORLD, geometry, level, variant)
+        sm = MS.build_shoulder_mesh(MPI.COMM_WORLD, geometry, level, variant)
         mesh, tags = (
             (sm.mesh, sm.facet_tags)
             if variant == "deformable"
@@ -302,11 +304,11 @@ def test_modulus_factors_scale_each_bone_alone():
     scene = load_scene("shoulder-internal-rotation")
     values = scene.values()
     assert values["scapula_modulus_factor"] == values["humerus_modulus_factor"] == 1.0
-    geometry = SH.S.geometry_from_values(values)
-    sm = SH.S.build_shoulder_mesh(comm, geometry, scene.level("coarse"), "deformable")
+    geometry = MS.geometry_from_values(values)
+    sm = MS.build_shoulder_mesh(comm, geometry, scene.level("coarse"), "deformable")
     image = SH.ct.shoulder_phantom(geometry)
     dx = ufl.Measure("dx", domain=sm.mesh, subdomain_data=sm.cell_tags)
-    tags = (SH.S.SCAPULA.id, SH.S.HUMERUS.id, SH.S.MARKERS["glenoid_cartilage"].id)
+    tags = (MS.SCAPULA.id, MS.HUMERUS.id, MS.MARKERS["glenoid_cartilage"].id)
 
     def integrals(scapula: float, humerus: float) -> np.ndarray:
         v = values | {"scapula_modulus_factor": scapula, "humerus_modulus_factor": humerus}

@@ -104,7 +104,7 @@ def test_glenoid_rim_and_radius(deformable, geometry):
     p = _gather_points(MPI.COMM_WORLD, _facet_points(deformable, "glenoid_articular"))
     _, radius = _sphere_fit(p)
     assert abs(radius - geometry.glenoid_radius) < 0.01 * geometry.glenoid_radius
-    lay = S._layout(geometry)
+    lay = S.layout(geometry)
     local = p @ lay.rot  # rows: rot.T @ x, glenoid frame
     height = np.ptp(local[:, 2])
     width = np.ptp(local[:, 1])
@@ -120,7 +120,7 @@ def test_cartilage_thicknesses(deformable, geometry):
     assert (
         abs(t_h - geometry.humeral_cartilage_thickness) < 0.1 * geometry.humeral_cartilage_thickness
     )
-    lay = S._layout(geometry)
+    lay = S.layout(geometry)
     cg = lay.rot @ np.array(
         [geometry.glenoid_radius - geometry.head_radius - geometry.joint_gap, 0, 0]
     )
@@ -163,7 +163,7 @@ def test_every_group_present_and_non_empty(deformable, rigid):
 
 def test_coarse_is_small_enough(deformable):
     """Whole model under 15k DOF: P2 displacement + P1 pressure in the soft tissue."""
-    from shoulder_fem.mesh_command import mesh_statistics
+    from shoulder_fem.cli.mesh import mesh_statistics
 
     totals = mesh_statistics(deformable)["totals"]
     mesh = deformable.mesh
@@ -371,7 +371,7 @@ def test_prosthetic_head_is_its_sphere_and_the_shaft_moves(geometry):
         return np.mean(_gather_points(comm, pts), axis=0)
 
     base = S.build_shoulder_mesh(comm, geometry, _coarse_sizes(), "rigid-bone")
-    anterior = S._layout(geometry).rot @ np.array([0.0, 1.0, 0.0])
+    anterior = S.layout(geometry).rot @ np.array([0.0, 1.0, 0.0])
     np.testing.assert_allclose(
         distal_centre(sm) - distal_centre(base), 2.0 * MM * anterior, atol=0.3 * MM
     )

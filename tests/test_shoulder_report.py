@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shoulder_fem.shoulder_report import (
+from shoulder_fem.families.shoulder.report import (
     FIGURES,
     comparison_table,
     glenoid_plane_coordinates,

@@ -11,8 +11,8 @@ from _util import assert_same_probes
 from mpi4py import MPI
 
 from shoulder_fem import load_scene, run
-from shoulder_fem.compare import compare_summaries
-from shoulder_fem.solver import linear_solver_options
+from shoulder_fem.engine.solver import linear_solver_options
+from shoulder_fem.io.compare import compare_summaries
 
 pytestmark = pytest.mark.mpi
 

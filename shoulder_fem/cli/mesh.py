@@ -20,6 +20,8 @@ import logging
 import time
 from pathlib import Path
 
+from shoulder_fem.cli.args import add_scene_arguments
+
 logger = logging.getLogger(__name__)
 
 ELEMENT = {
@@ -49,8 +51,6 @@ COLOURS = {
 
 def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``mesh`` sub-command to the CLI's sub-parsers."""
-    from .cli import add_scene_arguments
-
     p = subparsers.add_parser("mesh", help="build the mesh of a shoulder scene")
     p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
     add_scene_arguments(p, example="head_radius=22mm")
@@ -75,11 +75,10 @@ def cmd_mesh(args) -> int:
     import numpy as np
     from mpi4py import MPI
 
-    from shoulder_fem.meshes import density as dens
+    from shoulder_fem.io import ct as dens
+    from shoulder_fem.io.results import OutputDir, atomic_write_json
     from shoulder_fem.meshes import shoulder as sh
-
-    from .results import OutputDir, atomic_write_json
-    from .scene import SceneError, load_scene
+    from shoulder_fem.scene import SceneError, load_scene
 
     comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
@@ -328,9 +327,6 @@ def _plot(comm, path: Path, sm, image, calibration) -> None:
     body = comm.gather(np.array(body, dtype=np.int32), root=0)
     if comm.rank != 0:
         return
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
@@ -374,7 +370,7 @@ def _plot(comm, path: Path, sm, image, calibration) -> None:
             ax.legend(loc="upper left", fontsize=7, bbox_to_anchor=(-0.1, 1.0))
     # Density slices from the image: transverse (z = 0, the contact level) and scapular plane
     # (y = 0).
-    from shoulder_fem.meshes import density as dens
+    from shoulder_fem.io import ct as dens
 
     for k, (title, axis_name, span) in enumerate(
         (

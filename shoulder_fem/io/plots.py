@@ -1,26 +1,25 @@
-"""Figures (matplotlib, Agg backend): run against run, run against theory, resources."""
+"""Figures: run against run, run against theory, resources (PNG, written atomically).
+
+The backend is the caller's choice (the command line and the benchmarks select Agg).
+"""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from shoulder_fem.io.results import atomic_write_bytes
 
-_STYLE = {"coupled": dict(color="C0", lw=2.0), "decoupled": dict(color="C3", lw=1.2, ls="--")}
+METHOD_STYLE = {"coupled": dict(color="C0", lw=2.0), "decoupled": dict(color="C3", lw=1.2, ls="--")}
 
 
-def _save(fig, path: Path) -> Path:
-    """Write a figure atomically (temp file + rename), close it."""
+def save_figure(fig, path: Path) -> Path:
+    """Write a figure as PNG atomically (:func:`atomic_write_bytes`) and close it."""
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.png")
-    fig.savefig(tmp, dpi=150, bbox_inches="tight")
+    atomic_write_bytes(path, lambda f: fig.savefig(f, format="png", dpi=150, bbox_inches="tight"))
     plt.close(fig)
-    os.replace(tmp, path)
     return path
 
 
@@ -39,7 +38,7 @@ def plot_series(
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for s in runs:
         ser = s["series"][name]
-        ax.plot(ser["x"], ser["y"], label=_label(s), **_STYLE.get(s.get("method"), {}))
+        ax.plot(ser["x"], ser["y"], label=_label(s), **METHOD_STYLE.get(s.get("method"), {}))
     if reference is not None:
         x, y, label = reference
         ax.plot(x, y, color="k", lw=0.8, ls=":", label=label)
@@ -49,7 +48,7 @@ def plot_series(
     ax.set_title(title or f"{runs[0].get('scene')}: {name.replace('_', ' ')}")
     ax.grid(alpha=0.3)
     ax.legend()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_resources(runs: dict[str, dict], path: Path) -> Path:
@@ -65,7 +64,7 @@ def plot_resources(runs: dict[str, dict], path: Path) -> Path:
     for ax in (a1, a2):
         ax.grid(axis="y", alpha=0.3)
     fig.suptitle(f"{next(iter(runs.values())).get('scene')}: resources")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_cpu_vs_error(points: list[dict], path: Path, title: str) -> Path:
@@ -104,7 +103,7 @@ def plot_cpu_vs_error(points: list[dict], path: Path, title: str) -> Path:
     ax.set_ylabel("relative error")
     ax.set_title(title)
     ax.grid(alpha=0.3, which="both")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_pressure_profile(
@@ -136,4 +135,4 @@ def plot_pressure_profile(
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend()
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 
@@ -56,6 +56,27 @@ class ConvergenceError(RuntimeError):
 def unique_prefix(name: str) -> str:
     """Return a PETSc options prefix unique in this process, ending in ``_``."""
     return f"{name}{next(_prefix_counter)}_"
+
+
+def set_from_options(
+    solver: PETSc.SNES | PETSc.KSP, options: Mapping[str, object], ksp: bool = True
+) -> None:
+    """Let ``solver`` read ``options`` under its own prefix, then remove them again.
+
+    The one place where options enter PETSc's global database, so that nothing leaks into
+    another solver. For a SNES, its KSP reads them too (unless ``ksp`` is False).
+    """
+    prefix = solver.getOptionsPrefix() or ""
+    db = PETSc.Options()
+    for key, value in options.items():
+        db[f"{prefix}{key}"] = value
+    try:
+        solver.setFromOptions()
+        if ksp and isinstance(solver, PETSc.SNES):
+            solver.getKSP().setFromOptions()
+    finally:
+        for key in options:
+            db.delValue(f"{prefix}{key}")
 
 
 def default_snes_options() -> dict:
@@ -220,9 +241,6 @@ class NonlinearSolver:
 
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(self.prefix)
-        db = PETSc.Options()
-        for key, value in opts.items():
-            db[f"{self.prefix}{key}"] = value
         self.snes.setFunction(self._residual, self._b)
         self._P = fem_petsc.create_matrix(self._J) if lagged_factorization else self._A
         if self._near_nullspace:  # AMG reads the rigid-body modes from the preconditioner matrix
@@ -230,10 +248,7 @@ class NonlinearSolver:
             self._A.setNearNullSpace(modes)
             self._P.setNearNullSpace(modes)
         self.snes.setJacobian(self._jacobian, self._A, self._P)
-        self.snes.setFromOptions()
-        self.snes.getKSP().setFromOptions()
-        for key in opts:
-            db.delValue(f"{self.prefix}{key}")
+        set_from_options(self.snes, opts)
 
     # -- PETSc callbacks -------------------------------------------------------------------
     def _copy_in(self, x: PETSc.Vec) -> None:
@@ -325,7 +340,7 @@ class NonlinearSolver:
         self.stats.linear_solves += max(its, 1) if self.linear else its
         self.stats.history.append(its)
         if reason <= 0 or not np.isfinite(self.snes.getFunctionNorm()):
-            raise ConvergenceError(step, _reason_name(reason), its, self.prefix)
+            raise ConvergenceError(step, reason_name(reason), its, self.prefix)
         self._copy_in(self._x)
         return its
 
@@ -341,7 +356,8 @@ class NonlinearSolver:
             self._P.destroy()
 
 
-def _reason_name(reason: int) -> str:
+def reason_name(reason: int) -> str:
+    """The name of a SNES converged reason, with its number (e.g. ``DIVERGED_MAX_IT (-5)``)."""
     names = [n for n, v in vars(PETSc.SNES.ConvergedReason).items() if v == reason]
     return f"{names[0] if names else 'UNKNOWN'} ({reason})"
 

@@ -287,9 +287,9 @@ def shoulder_phantom(
     """
     from shoulder_fem.meshes import shoulder
 
-    lay = shoulder._layout(geometry)
+    lay = shoulder.layout(geometry)
     rb = geometry.subchondral_radius
-    s_dir, s_base = shoulder._shaft_axis(geometry)
+    s_dir, s_base = shoulder.shaft_axis(geometry)
     s_dir = lay.rot @ s_dir
     s_base = lay.rot @ (s_base + geometry.humeral_shift) * 1e-3
     x_med = lay.x_med * 1e-3

@@ -23,10 +23,10 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .meshes.bar import ROOT, TIP, build_bar
-from .rigid import SpinUp
-from .scene import Scene, SceneError
-from .solver import StepperStats, march, time_grid
+from shoulder_fem.engine.rigid import SpinUp
+from shoulder_fem.engine.solver import StepperStats, march, time_grid
+from shoulder_fem.meshes.bar import ROOT, TIP, build_bar
+from shoulder_fem.scene import Scene, SceneError
 
 logger = logging.getLogger(__name__)
 
@@ -100,7 +100,7 @@ class DrivenBody:
         return 0.5 * self.density * omega**2 * (self.outer_radius**2 - np.asarray(r) ** 2)
 
 
-def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> DrivenBody:
+def build(scene: Scene, level: str | None, comm: MPI.Comm, method: str | None = None) -> DrivenBody:
     """Check the scene's parameters together and build the mesh of ``level``."""
     p = scene.values()
     lv = scene.level(level)
@@ -154,6 +154,12 @@ def build_driven_body(scene: Scene, level: str | None, comm: MPI.Comm) -> Driven
 def vector_space(model: DrivenBody) -> dolfinx.fem.FunctionSpace:
     """The displacement space: continuous Lagrange (Q_k on hexahedra) of the level's degree."""
     return dolfinx.fem.VectorFunctionSpace(model.mesh, ("Lagrange", model.degree))
+
+
+def dofs(model: DrivenBody) -> int:
+    """Displacement DOFs (global)."""
+    V = vector_space(model)
+    return V.dofmap.index_map.size_global * V.dofmap.index_map_bs
 
 
 def clamp_dofs(model: DrivenBody, V: dolfinx.fem.FunctionSpace) -> np.ndarray:
@@ -238,11 +244,6 @@ class BodyOutputs:
         self.axial_stress.interpolate(self._sxx_expr)
         self.von_mises.interpolate(self._vm_expr)
         return [self.axial_stress, self.von_mises]
-
-
-def constant(mesh: dolfinx.mesh.Mesh, value) -> dolfinx.fem.Constant:
-    """A float64 ``Constant`` (scalar, vector or matrix) on ``mesh``."""
-    return dolfinx.fem.Constant(mesh, PETSc.ScalarType(np.asarray(value, dtype=float)))
 
 
 def boundary_reaction(
@@ -363,7 +364,7 @@ def march_driven_body(
         frame: ``frame(t)`` sets whatever the body-frame measures need at time ``t``.
         extra_record: ``extra_record(t)`` records method-specific series after each step.
     """
-    from .results import FieldWriter
+    from shoulder_fem.io.results import FieldWriter
 
     comm = model.mesh.comm
     writer = FieldWriter(comm, model.mesh, fields_dir / "displacement.xdmf")
@@ -410,7 +411,8 @@ def march_driven_body(
         if frame is not None:
             frame(last["t"])
         finish_probes(model, recorder, outputs, last)
-        solver_counts(recorder, solver, stats)
+        recorder.add_solver_counts(solver.stats, stats)
+        recorder.extra("krylov_iterations", solver.stats.krylov_iterations)
 
 
 def finish_probes(model: DrivenBody, recorder, outputs: BodyOutputs, last: dict) -> None:
@@ -460,13 +462,3 @@ def finish_probes(model: DrivenBody, recorder, outputs: BodyOutputs, last: dict)
             model.density * length * model.side**4 / 6 * peak_rate_dot,
             "N*m",
         )
-
-
-def solver_counts(recorder, solver, stats: StepperStats) -> None:
-    """Copy the solver and stepper counters into the summary."""
-    recorder.count("steps", stats.steps)
-    recorder.count("cutbacks", stats.cutbacks)
-    recorder.count("newton_iterations", solver.stats.newton_iterations)
-    recorder.count("linear_solves", solver.stats.linear_solves)
-    recorder.count("factorizations", solver.stats.factorizations)
-    recorder.extra("krylov_iterations", solver.stats.krylov_iterations)

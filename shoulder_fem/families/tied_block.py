@@ -37,13 +37,15 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .forms import materials
-from .forms import virtual_power as vp
-from .meshes.block import BASE, BLOCK, PLATE, PLATE_TOP, TOP, build_block
-from .rigid import rotation_about
-from .rigid_bodies import RigidBody, RigidSystem, Tie
-from .scene import Scene, SceneError
-from .solver import NonlinearSolver, StepperStats, march
+from shoulder_fem.engine.fem import constant, owned_flags
+from shoulder_fem.engine.rigid import rotation_about
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.solver import NonlinearSolver, StepperStats, march
+from shoulder_fem.families.base import Family, RunContext
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.meshes.block import BASE, BLOCK, PLATE, PLATE_TOP, TOP, build_block
+from shoulder_fem.scene import Scene, SceneError
 
 logger = logging.getLogger(__name__)
 
@@ -97,7 +99,7 @@ class TiedBlock:
         """
         c10, kappa = self.shear_modulus / 2, self.bulk_modulus
         if mesh is not None:
-            c10, kappa = _constant(mesh, c10), _constant(mesh, kappa)
+            c10, kappa = constant(mesh, c10), constant(mesh, kappa)
         return materials.NeoHookean(c10=c10, bulk_modulus=kappa)
 
     def plate_material(self, mesh: dolfinx.mesh.Mesh | None = None) -> materials.NeoHookean:
@@ -112,7 +114,7 @@ class TiedBlock:
         law = materials.NeoHookean.from_young(self.plate_stiffness_ratio * e_block, PLATE_POISSON)
         if mesh is None:
             return law
-        return materials.NeoHookean(_constant(mesh, law.c10), _constant(mesh, law.bulk_modulus))
+        return materials.NeoHookean(constant(mesh, law.c10), constant(mesh, law.bulk_modulus))
 
     def force_tolerance(self, coupled: bool = False) -> float:
         """Absolute Newton tolerance on the residual (N): 1e-13 κ a², κ the largest bulk modulus.
@@ -126,11 +128,7 @@ class TiedBlock:
         return 1e-13 * kappa * self.side**2
 
 
-def _constant(mesh: dolfinx.mesh.Mesh, value: float) -> dolfinx.fem.Constant:
-    return dolfinx.fem.Constant(mesh, PETSc.ScalarType(value))
-
-
-def build(scene: Scene, level: str | None, comm: MPI.Comm) -> TiedBlock:
+def build(scene: Scene, level: str | None, comm: MPI.Comm, method: str | None = None) -> TiedBlock:
     """Check the scene's parameters together and build both meshes of ``level``."""
     p = scene.values()
     lv = scene.level(level)
@@ -178,15 +176,6 @@ def dofs(model: TiedBlock) -> int:
     """Displacement DOFs of the block (global): the size both methods share."""
     V = vector_space(model.mesh, model.degree)
     return V.dofmap.index_map.size_global * V.dofmap.index_map_bs
-
-
-def family():
-    """The ``tied-block`` family for :func:`shoulder_fem.api._families`."""
-    from .api import Family
-
-    return Family(
-        build=build, methods={"coupled": run_coupled, "decoupled": run_decoupled}, dofs=dofs
-    )
 
 
 # ---- measures shared by both methods ------------------------------------------------------
@@ -245,12 +234,10 @@ class FaceMeasures:
 
 def _owned_nodes_on(V, tags, tag: int) -> np.ndarray:
     """Owned block DOFs of the facets tagged ``tag`` (marked from every rank's facets)."""
-    from .rigid_bodies import _owned_flags
-
     fdim = V.mesh.topology.dim - 1
     dofs_ = dolfinx.fem.locate_dofs_topological(V, fdim, tags.find(tag))
     imap = V.dofmap.index_map
-    return np.flatnonzero(_owned_flags(imap, dofs_, V.mesh.comm)[: imap.size_local])
+    return np.flatnonzero(owned_flags(imap, dofs_, V.mesh.comm)[: imap.size_local])
 
 
 def _record(model, recorder, measures, lam, base_torque) -> None:
@@ -297,7 +284,7 @@ def _twist_increment(model: TiedBlock, measures: FaceMeasures, l0: float, l1: fl
 
 
 def _write_fields(model, mesh, u, fields_dir) -> None:
-    from .results import FieldWriter
+    from shoulder_fem.io.results import FieldWriter
 
     V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
     u1 = dolfinx.fem.Function(V1, name="displacement")
@@ -338,8 +325,12 @@ def make_rigid_system(model: TiedBlock, options: dict | None = None):
     return system, plate, u
 
 
-def run_decoupled(model: TiedBlock, recorder, monitor, fields_dir, options=None) -> None:
+def run_decoupled(model: TiedBlock, run: RunContext) -> None:
     """The plate as a rigid body (six DOFs): reduced system, torque or prescribed rotation."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     system, plate, u = make_rigid_system(model, options)
     V = u.function_space
     measures = FaceMeasures(
@@ -386,7 +377,8 @@ def run_decoupled(model: TiedBlock, recorder, monitor, fields_dir, options=None)
             },
         )
         recorder.extra("newton_residual_histories", system.stats.residual_histories)
-        _counts(recorder, system.stats, stats)
+        recorder.add_solver_counts(system.stats, stats)
+        recorder.extra("newton_iterations_per_step", list(system.stats.history))
     _write_fields(model, model.mesh, u, fields_dir)
     system.destroy()
 
@@ -403,8 +395,12 @@ def tied_distance_error(system: RigidSystem, body: str) -> float:
 # ---- coupled: stiff deformable plate ------------------------------------------------------
 
 
-def run_coupled(model: TiedBlock, recorder, monitor, fields_dir, options=None) -> None:
+def run_coupled(model: TiedBlock, run: RunContext) -> None:
     """The plate as a stiff deformable layer, everything one finite-strain solve."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     mesh = model.plated_mesh
     V = vector_space(mesh, model.degree)
     u = dolfinx.fem.Function(V, name="displacement")
@@ -490,15 +486,15 @@ def run_coupled(model: TiedBlock, recorder, monitor, fields_dir, options=None) -
         vec = assembled_residual()
         _probes(model, recorder, measures, vec, state["lam"])
         vec.destroy()
-        _counts(recorder, solver.stats, stats)
+        recorder.add_solver_counts(solver.stats, stats)
+        recorder.extra("newton_iterations_per_step", list(solver.stats.history))
     _write_fields(model, mesh, u, fields_dir)
     solver.destroy()
 
 
-def _counts(recorder, solver_stats, stats: StepperStats) -> None:
-    recorder.count("steps", stats.steps)
-    recorder.count("cutbacks", stats.cutbacks)
-    recorder.count("newton_iterations", solver_stats.newton_iterations)
-    recorder.count("linear_solves", solver_stats.linear_solves)
-    recorder.count("factorizations", solver_stats.factorizations)
-    recorder.extra("newton_iterations_per_step", list(solver_stats.history))
+FAMILY = Family(
+    name="tied-block",
+    build=build,
+    methods={"coupled": run_coupled, "decoupled": run_decoupled},
+    dofs=dofs,
+)

@@ -59,8 +59,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,15 +71,18 @@ from petsc4py import PETSc
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from .contact import Contact, ContactPair, MeshSurface
-from .forms import materials
-from .forms import virtual_power as vp
-from .meshes import density as ct
-from .meshes import shoulder as S
-from .rigid_bodies import RigidBody, RigidSystem, Tie
-from .scene import Scene
-from .solver import ConvergenceError
-from .springs import GROUND, Spring, spring_response
+from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
+from shoulder_fem.engine.rigid import hat
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.solver import ConvergenceError, StepperStats
+from shoulder_fem.engine.springs import GROUND, Spring, spring_response
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.io import ct
+from shoulder_fem.io.results import atomic_savez
+from shoulder_fem.meshes import shoulder as S
+from shoulder_fem.scene import Scene
 
 logger = logging.getLogger(__name__)
 
@@ -172,8 +173,8 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     meshes = S.build_shoulder_mesh(
         comm, geometry, sizes, variants, detach=DETACHED, head_layer=wrap
     )
-    lay = S._layout(geometry)
-    s_dir = lay.rot @ S._shaft_axis(geometry)[0]
+    lay = S.layout(geometry)
+    s_dir = lay.rot @ S.shaft_axis(geometry)[0]
     axis = -s_dir / np.linalg.norm(s_dir)
     image = ct.shoulder_phantom(geometry)
     model = ShoulderModel(scene, level, comm, method, values, geometry, meshes, axis, image)
@@ -191,18 +192,6 @@ def _vector_dofs(mesh) -> int:
 def dofs(model: ShoulderModel) -> int:
     """Displacement DOFs: the whole joint (coupled), or part 1 + part 2 (decoupled)."""
     return sum(_vector_dofs(m.mesh) for m in model.meshes.values())
-
-
-def family():
-    """The ``shoulder`` family for :func:`shoulder_fem.api._families`."""
-    from .api import Family
-
-    return Family(
-        build=build,
-        methods={"coupled": run_coupled, "decoupled": run_decoupled},
-        dofs=dofs,
-        method_build=True,
-    )
 
 
 # ---- geometry helpers -----------------------------------------------------------------------
@@ -769,8 +758,12 @@ def _spring_plates(mesh, facet_tags, springs: list[dict], length: float):
     return bodies, ties, out
 
 
-def run_coupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, options) -> None:
+def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     """Method #1: every body deformable, finite strain (collective)."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     v = model.values
     sm = model.meshes["deformable"]
     mesh, ct_ = sm.mesh, sm.cell_tags
@@ -899,7 +892,7 @@ def _save_results(model, data, stress_vm, mesh, ft, path: Path) -> None:
 
 
 def _cauchy(bone, u) -> ufl.core.expr.Expr:
-    from .forms.kinematics import deformation_gradient
+    from shoulder_fem.forms.kinematics import deformation_gradient
 
     Fg = deformation_gradient(u)
     return bone.first_piola(Fg) * Fg.T / ufl.det(Fg)
@@ -917,14 +910,6 @@ def _record_von_mises(recorder, stress_vm: VonMises, x: float, data: dict, comm)
     )
     data["von_mises"] = stress_vm.nodal(comm)
     data["von_mises_angle_deg"] = x
-
-
-def _count_solves(recorder, stats, steps: int) -> None:
-    """Add a :class:`RigidSystem`'s solver counters (its ``stats``) and ``steps`` to the run's."""
-    recorder.count("steps", steps)
-    recorder.count("newton_iterations", stats.newton_iterations)
-    recorder.count("linear_solves", stats.linear_solves)
-    recorder.count("factorizations", stats.factorizations)
 
 
 def _time_split(recorder, label: str, system: RigidSystem, contact: Contact) -> None:
@@ -1068,9 +1053,8 @@ def _run_steps(
     recorder.set_probe("failed_steps", log.failed_steps, "1")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
-    _count_solves(recorder, system.stats, log.steps)
+    recorder.add_solver_counts(system.stats, StepperStats(log.steps, log.failed_steps))
     _time_split(recorder, label, system, contact)
-    recorder.count("cutbacks", log.failed_steps)
     if stop is not None:
         mean, top = cap_position()  # at the last converged state: where the contact had got to
         stop += (
@@ -1088,13 +1072,9 @@ def _run_steps(
 
 
 def _save_npz(path: Path, arrays: dict, comm: MPI.Comm) -> None:
-    """Write ``arrays`` to ``path`` atomically (rank 0)."""
+    """Write ``arrays`` to ``path`` atomically (rank 0 writes, every rank waits)."""
     if comm.rank == 0:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-        os.close(fd)
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
+        atomic_savez(path, arrays)
     comm.Barrier()
 
 
@@ -1136,10 +1116,6 @@ class NodalLoads:
         return A
 
 
-def _hat(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _finite_differences(times, translations, rotations):
     """Per output: velocity, acceleration (spatial) and body-frame Ω, dΩ/dt (backward)."""
     n = len(times)
@@ -1154,8 +1130,12 @@ def _finite_differences(times, translations, rotations):
     return vel, acc, om, dom
 
 
-def run_decoupled(model: ShoulderModel, recorder, monitor, fields_dir: Path, options) -> None:
+def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
     """Method #2: part 1 (rigid bones), then part 2 (scapula, linear, floating frame)."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     v = model.values
     sm = model.meshes["rigid-bone"]
     mesh, ct_ = sm.mesh, sm.cell_tags
@@ -1326,8 +1306,8 @@ def _part2(model, recorder, fields_dir, transfer, points, layout, ref, options, 
     # [m I, -hat(S); hat(S), J] (a, alpha) = -(F, M), J = tr(R2) I - R2 about ref
     relief_matrix = np.block(
         [
-            [mass * np.eye(3), -_hat(first)],
-            [_hat(first), np.trace(second) * np.eye(3) - second],
+            [mass * np.eye(3), -hat(first)],
+            [hat(first), np.trace(second) * np.eye(3) - second],
         ]
     )
     loads = NodalLoads(V, points)
@@ -1433,7 +1413,7 @@ def _part2(model, recorder, fields_dir, transfer, points, layout, ref, options, 
     recorder.set_probe("transfer_equilibrium_residual", worst, "1")
     recorder.set_probe("part2_factorizations", system.stats.factorizations, "1")
     recorder.set_probe("part2_iterations", iterations, "1")
-    _count_solves(recorder, system.stats, len(angles))
+    recorder.add_solver_counts(system.stats, StepperStats(steps=len(angles)))
     recorder.extra("dofs_part2", V.dofmap.index_map.size_global * 3)
     system.destroy()
     return stress_vm, mesh, ft

@@ -84,10 +84,17 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .forms import kinematics, rigid_body
-from .forms.materials import Hyperelastic
-from .rigid import exp_so3, log_so3, project_to_so3
-from .solver import ConvergenceError, direct_solver_options, unique_prefix
+from shoulder_fem.engine.fem import constant
+from shoulder_fem.engine.mass import mass_properties
+from shoulder_fem.engine.rigid import exp_so3, log_so3, project_to_so3
+from shoulder_fem.engine.solver import (
+    ConvergenceError,
+    direct_solver_options,
+    set_from_options,
+    unique_prefix,
+)
+from shoulder_fem.forms import kinematics
+from shoulder_fem.forms.materials import Hyperelastic
 
 logger = logging.getLogger(__name__)
 
@@ -95,48 +102,10 @@ __all__ = [
     "BorderedSolver",
     "FloatingBody",
     "FloatingState",
-    "MassProperties",
     "MotionMeasures",
-    "mass_properties",
 ]
 
 _E = np.eye(3)
-
-
-@dataclass(frozen=True)
-class MassProperties:
-    """Mass properties of the reference configuration (uniform density).
-
-    Attributes:
-        mass: m (kg).
-        centre: reference centre of mass X_G (m), shape (3,).
-        inertia: inertia tensor about X_G, I_G (kg m²), shape (3, 3).
-    """
-
-    mass: float
-    centre: np.ndarray
-    inertia: np.ndarray
-
-
-def mass_properties(mesh: dolfinx.mesh.Mesh, rho: float, dx: ufl.Measure) -> MassProperties:
-    """Mass, centre of mass and inertia tensor about it, from the UFL functionals (collective).
-
-    Args:
-        mesh: the reference mesh (m).
-        rho: uniform density (kg/m³).
-        dx: cell measure (its quadrature should integrate quadratics exactly).
-    """
-    X = ufl.SpatialCoordinate(mesh)
-
-    def total(form: ufl.Form) -> float:
-        value = dolfinx.fem.assemble_scalar(dolfinx.fem.form(form))
-        return mesh.comm.allreduce(value, op=MPI.SUM)
-
-    m = total(rigid_body.mass(rho, dx))
-    centre = np.array([total(f) for f in rigid_body.first_moment(rho, X, dx)]) / m
-    gm = X - ufl.as_vector(centre.tolist())
-    inertia = np.array([[total(f) for f in row] for row in rigid_body.inertia_tensor(rho, gm, dx)])
-    return MassProperties(m, centre, 0.5 * (inertia + inertia.T))
 
 
 class MotionMeasures:
@@ -224,14 +193,8 @@ class BorderedSolver:
         self.ksp = PETSc.KSP().create(comm)
         self.prefix = unique_prefix(name)
         self.ksp.setOptionsPrefix(self.prefix)
-        db = PETSc.Options()
-        opts = direct_solver_options()
-        for key, value in opts.items():
-            db[f"{self.prefix}{key}"] = value
         self.ksp.setOperators(A)
-        self.ksp.setFromOptions()
-        for key in opts:
-            db.delValue(f"{self.prefix}{key}")
+        set_from_options(self.ksp, direct_solver_options())
         self._b, self._y = A.createVecs()
         self.factorizations = 0
         self.back_substitutions = 0
@@ -349,17 +312,14 @@ class FloatingBody:
         self._Y = coords - self.props.centre  # local + ghost nodes, (n, 3)
         self.length = math.sqrt(float(np.trace(self.props.inertia)) / self.props.mass)
 
-        def const(value) -> dolfinx.fem.Constant:
-            return dolfinx.fem.Constant(mesh, PETSc.ScalarType(np.asarray(value, dtype=float)))
-
         self.u = dolfinx.fem.Function(V, name="strain_displacement")
         self._z = dolfinx.fem.Function(V)  # stays zero: carries the frame derivatives
         self._d = dolfinx.fem.Function(V)  # a frame direction
         self.x_n = dolfinx.fem.Function(V)  # inertial nodal positions at t_n
         self.v_n = dolfinx.fem.Function(V)  # inertial nodal velocities at t_n
-        self._xg = const(np.zeros(3))
-        self._R = const(np.eye(3))
-        self._dt = const(1.0)
+        self._xg = constant(mesh, np.zeros(3))
+        self._R = constant(mesh, np.eye(3))
+        self._dt = constant(mesh, 1.0)
         X = ufl.SpatialCoordinate(mesh)
         Y = X - ufl.as_vector(self.props.centre.tolist())
         x1 = self._xg + self._R * (Y + self.u) + self._z

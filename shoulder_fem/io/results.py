@@ -27,10 +27,10 @@ import os
 import secrets
 import shutil
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path, PurePath
 from types import TracebackType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
@@ -45,7 +45,10 @@ __all__ = [
     "OutputError",
     "Recorder",
     "SUMMARY_NAME",
+    "atomic_savez",
+    "atomic_write_bytes",
     "atomic_write_json",
+    "atomic_write_text",
     "load_summary",
     "to_jsonable",
 ]
@@ -119,27 +122,19 @@ def _fsync_dir(folder: Path) -> None:
             os.close(fd)
 
 
-def atomic_write_json(path: str | os.PathLike[str], data: Any) -> None:
-    """Write JSON so that readers see either the old file or the complete new one.
+def atomic_write_bytes(path: str | os.PathLike[str], write: Callable[[BinaryIO], None]) -> None:
+    """Write a file so that readers see either the old file or the complete new one.
 
-    The data are converted with :func:`to_jsonable` first (NaN/inf become null), written to a
-    temporary file in the same folder, flushed to disk and renamed over ``path``. On any error no
-    temporary file is left behind and an existing ``path`` is untouched. No MPI inside: the caller
-    writes on one rank only.
-
-    Args:
-        path: destination file; its folder must exist.
-        data: JSON-convertible data.
-
-    Raises:
-        TypeError: if ``data`` holds a value with no JSON form.
+    ``write(f)`` fills a temporary file in the same folder, which is flushed to disk, made
+    readable like the rest of the output (0644) and renamed over ``path``. On any error no
+    temporary file is left behind and an existing ``path`` is untouched. No MPI inside: the
+    caller writes on one rank only. The one way this package writes a file atomically.
     """
     path = Path(path)
-    text = json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n"
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            write(f)
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o644)
@@ -149,6 +144,27 @@ def atomic_write_json(path: str | os.PathLike[str], data: Any) -> None:
             os.unlink(tmp)
         raise
     _fsync_dir(path.parent)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write UTF-8 text atomically (see :func:`atomic_write_bytes`)."""
+    atomic_write_bytes(path, lambda f: f.write(text.encode("utf-8")))
+
+
+def atomic_write_json(path: str | os.PathLike[str], data: Any) -> None:
+    """Write JSON atomically (see :func:`atomic_write_bytes`).
+
+    The data are converted with :func:`to_jsonable` first (NaN/inf become null).
+
+    Raises:
+        TypeError: if ``data`` holds a value with no JSON form.
+    """
+    atomic_write_text(path, json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n")
+
+
+def atomic_savez(path: str | os.PathLike[str], arrays: Mapping[str, Any]) -> None:
+    """Write NumPy arrays to an ``.npz`` file atomically (see :func:`atomic_write_bytes`)."""
+    atomic_write_bytes(path, lambda f: np.savez(f, **arrays))
 
 
 def load_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -489,6 +505,22 @@ class Recorder:
         if key not in self.solver_stats:
             raise KeyError(f"unknown solver counter {key!r}; known: {', '.join(SOLVER_KEYS)}")
         self.solver_stats[key] += int(n)
+
+    def add_solver_counts(self, solver: Any = None, stepper: Any = None) -> None:
+        """Add a solver's and a load stepper's counters to the run's (the one way to do it).
+
+        Args:
+            solver: counters of the solves (a ``SolveStats``: ``newton_iterations``,
+                ``linear_solves``, ``factorizations``), or None.
+            stepper: counters of the stepping (``steps``, ``cutbacks``), or None.
+        """
+        if stepper is not None:
+            self.count("steps", stepper.steps)
+            self.count("cutbacks", stepper.cutbacks)
+        if solver is not None:
+            self.count("newton_iterations", solver.newton_iterations)
+            self.count("linear_solves", solver.linear_solves)
+            self.count("factorizations", solver.factorizations)
 
     def set_status(self, status: str, message: str | None = None) -> None:
         """Set the run's outcome, with a one-line reason.

@@ -35,7 +35,6 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import dolfinx
 import numpy as np
@@ -43,16 +42,16 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .floating import BorderedSolver, FloatingBody, MotionMeasures, mass_properties
-from .forms import kinematics, materials
-from .forms import virtual_power as vp
-from .meshes.box import build_box
-from .rigid import NewtonEuler, RigidState
-from .scene import Scene, SceneError
-from .solver import StepperStats, march, time_grid
-
-if TYPE_CHECKING:
-    from .api import Family
+from shoulder_fem.engine.fem import constant
+from shoulder_fem.engine.floating import BorderedSolver, FloatingBody, MotionMeasures
+from shoulder_fem.engine.mass import mass_properties
+from shoulder_fem.engine.rigid import NewtonEuler, RigidState
+from shoulder_fem.engine.solver import SolveStats, StepperStats, march, time_grid
+from shoulder_fem.families.base import Family, RunContext
+from shoulder_fem.forms import kinematics, materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.meshes.box import build_box
+from shoulder_fem.scene import Scene, SceneError
 
 logger = logging.getLogger(__name__)
 
@@ -79,7 +78,9 @@ class TumblingBody:
     relaxed_start: bool
 
 
-def build(scene: Scene, level: str | None, comm: MPI.Comm) -> TumblingBody:
+def build(
+    scene: Scene, level: str | None, comm: MPI.Comm, method: str | None = None
+) -> TumblingBody:
     """Check the scene's parameters together and build the mesh of ``level``."""
     p = scene.values()
     lv = scene.level(level)
@@ -121,15 +122,6 @@ def build(scene: Scene, level: str | None, comm: MPI.Comm) -> TumblingBody:
 def dofs(model: TumblingBody) -> int:
     """Global number of straining-displacement DOFs (the 6 frame DOFs not counted)."""
     return model.V.dofmap.index_map.size_global * model.V.dofmap.index_map_bs
-
-
-def family() -> Family:
-    """The ``tumbling-body`` entry of :func:`shoulder_fem.api._families`."""
-    from .api import Family
-
-    return Family(
-        build=build, methods={"coupled": run_coupled, "decoupled": run_decoupled}, dofs=dofs
-    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -298,12 +290,13 @@ def _write_fields(writer, functions, t: float, field_times: set) -> None:
         writer.write(functions, t)
 
 
-def _counts(recorder, stats: StepperStats, newton: int, linear: BorderedSolver) -> None:
-    recorder.count("steps", stats.steps)
-    recorder.count("cutbacks", stats.cutbacks)
-    recorder.count("newton_iterations", newton)
-    recorder.count("linear_solves", linear.back_substitutions)
-    recorder.count("factorizations", linear.factorizations)
+def _bordered_counts(newton: int, linear: BorderedSolver) -> SolveStats:
+    """The counters of ``newton`` iterations on a :class:`BorderedSolver`."""
+    return SolveStats(
+        newton_iterations=newton,
+        linear_solves=linear.back_substitutions,
+        factorizations=linear.factorizations,
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -311,12 +304,16 @@ def _counts(recorder, stats: StepperStats, newton: int, linear: BorderedSolver) 
 # --------------------------------------------------------------------------------------------
 
 
-def run_coupled(model: TumblingBody, recorder, monitor, fields_dir, options=None) -> None:
+def run_coupled(model: TumblingBody, run: RunContext) -> None:
     """Run the coupled floating-frame solver; results go to ``recorder`` and ``fields_dir``.
 
     ``options`` may hold ``rtol``, ``atol`` (N) and ``max_iterations`` of the Newton solve.
     """
-    from .results import FieldWriter
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
+    from shoulder_fem.io.results import FieldWriter
 
     opts = dict(options or {})
     material = materials.SaintVenantKirchhoff(model.youngs_modulus, model.poisson_ratio)
@@ -360,7 +357,7 @@ def run_coupled(model: TumblingBody, recorder, monitor, fields_dir, options=None
     finally:
         writer.close()
         reporter.finish()
-        _counts(recorder, stats, body.newton_iterations, body.linear)
+        recorder.add_solver_counts(_bordered_counts(body.newton_iterations, body.linear), stats)
         if histories:
             recorder.extra("newton_history_first_step", histories[0])
             recorder.extra("newton_history_last_step", histories[-1])
@@ -375,12 +372,15 @@ def run_coupled(model: TumblingBody, recorder, monitor, fields_dir, options=None
 # --------------------------------------------------------------------------------------------
 
 
-def run_decoupled(model: TumblingBody, recorder, monitor, fields_dir, options=None) -> None:
+def run_decoupled(model: TumblingBody, run: RunContext) -> None:
     """Run the decoupled method (steps 1–3 of the paper); results go to ``recorder``."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
     import dolfinx.fem.petsc as fem_petsc
 
-    from .driven_body import NewmarkState
-    from .results import FieldWriter
+    from shoulder_fem.families.driven_body.model import NewmarkState
+    from shoulder_fem.io.results import FieldWriter
 
     mesh, V = model.mesh, model.V
     comm = mesh.comm
@@ -397,10 +397,9 @@ def run_decoupled(model: TumblingBody, recorder, monitor, fields_dir, options=No
     rstate = RigidState(x_g=props.centre, omega=model.omega0)
 
     # Step 3: eq. (13), linear, in the rigid frame, Newmark average acceleration.
-    def const(value) -> dolfinx.fem.Constant:
-        return dolfinx.fem.Constant(mesh, PETSc.ScalarType(np.asarray(value, dtype=float)))
 
-    omega, domega, a_g, dt = const(np.zeros(3)), const(np.zeros(3)), const(np.zeros(3)), const(1.0)
+    omega, domega, a_g = (constant(mesh, np.zeros(3)) for _ in range(3))
+    dt = constant(mesh, 1.0)
     X = ufl.SpatialCoordinate(mesh)
     Y = X - ufl.as_vector(props.centre.tolist())
     w = ufl.TestFunction(V)
@@ -448,7 +447,7 @@ def run_decoupled(model: TumblingBody, recorder, monitor, fields_dir, options=No
         try:
             new = rigid.step(last["rigid"], h)
         except RuntimeError as err:
-            from .solver import ConvergenceError
+            from shoulder_fem.engine.solver import ConvergenceError
 
             raise ConvergenceError(
                 f"t = {t1:.6g} s", str(err), rigid.last_iterations, "rigid"
@@ -484,7 +483,7 @@ def run_decoupled(model: TumblingBody, recorder, monitor, fields_dir, options=No
     reporter = Reporter(model, recorder, props.inertia, props.mass)
     # The decoupling indicator's reference scales come from the whole rigid motion (step 1
     # runs before step 3 in the paper's algorithm; here it is integrated once more up front).
-    from .methods.decoupled import INDICATOR_WARNING, DecouplingIndicator
+    from shoulder_fem.families.driven_body.decoupled import INDICATOR_WARNING, DecouplingIndicator
 
     # G is free (a_G = 0): no orbit about an origin, hence x_g = 0 for the reference scale.
     indicator = DecouplingIndicator(mesh, V, rho, Y, dx, props.mass, np.zeros(3), props.inertia)
@@ -537,8 +536,16 @@ def run_decoupled(model: TumblingBody, recorder, monitor, fields_dir, options=No
         reporter.finish()
         indicator_series = recorder.series.get("decoupling_indicator", {}).get("y", [0.0])
         recorder.set_probe("max_decoupling_indicator", float(max(indicator_series)), "1")
-        _counts(recorder, stats, stats.steps, linear)
+        recorder.add_solver_counts(_bordered_counts(stats.steps, linear), stats)
         recorder.extra("frame_multipliers_final", last["multipliers"])
         linear.destroy()
         A.destroy()
         r_vec.destroy()
+
+
+FAMILY = Family(
+    name="tumbling-body",
+    build=build,
+    methods={"coupled": run_coupled, "decoupled": run_decoupled},
+    dofs=dofs,
+)

@@ -37,38 +37,33 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..driven_body import (
+from shoulder_fem.engine.fem import constant
+from shoulder_fem.engine.mass import mass_properties
+from shoulder_fem.engine.solver import NonlinearSolver
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.driven_body.model import (
     BodyOutputs,
     DrivenBody,
     NewmarkState,
     boundary_reaction,
     clamp_dofs,
-    constant,
     dof_coordinates,
     march_driven_body,
     quadrature,
     vector_space,
 )
-from ..forms import kinematics, materials, rigid_body
-from ..forms import virtual_power as vp
-from ..solver import NonlinearSolver
+from shoulder_fem.forms import kinematics, materials
+from shoulder_fem.forms import virtual_power as vp
 
 logger = logging.getLogger(__name__)
 
 
-def centre_of_mass(mesh, rho: float, dx) -> tuple[float, np.ndarray]:
-    """Mass (kg) and centre of mass (m) of a body of uniform density (collective)."""
-    X = ufl.SpatialCoordinate(mesh)
-
-    def total(form) -> float:
-        return mesh.comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(form)), MPI.SUM)
-
-    m = total(rigid_body.mass(rho, dx))
-    return m, np.array([total(f) for f in rigid_body.first_moment(rho, X, dx)]) / m
-
-
-def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=None) -> None:
+def run_decoupled(model: DrivenBody, run: RunContext) -> None:
     """Run the decoupled method on a driven body; results go to ``recorder`` and ``fields_dir``."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     mesh = model.mesh
     comm = mesh.comm
     V = vector_space(model)
@@ -83,8 +78,8 @@ def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=No
     recorder.extra("decoupled_variant", variant)
 
     # Part 1: the rigid motion (the hub's) and the body's mass properties about G.
-    mass, x_g = centre_of_mass(mesh, rho, dx)
-    inertia = inertia_about(mesh, rho, X - constant(mesh, x_g), dx)
+    props = mass_properties(mesh, rho, dx)
+    mass, x_g, inertia = props.mass, props.centre, props.inertia
     recorder.extra("mass_kg", mass)
     recorder.extra("centre_of_mass_m", x_g)
     recorder.extra("inertia_tensor_kg_m2", inertia)
@@ -279,20 +274,6 @@ def spin_stiffness_ratio(recorder) -> float:
 
 #: Above this value of the decoupling indicator a warning is logged.
 INDICATOR_WARNING = 0.05
-
-
-def inertia_about(mesh, rho: float, gm, dx) -> np.ndarray:
-    """Inertia tensor I_G = ∫ρ(|GM|² I − GM ⊗ GM) (kg·m², body frame, collective)."""
-    forms = rigid_body.inertia_tensor(rho, gm, dx)
-    return np.array(
-        [
-            [
-                mesh.comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(f)), op=MPI.SUM)
-                for f in row
-            ]
-            for row in forms
-        ]
-    )
 
 
 def unit_centrifugal_prestress(model, V, material, rho, gm, x_g, bc, dx, options):

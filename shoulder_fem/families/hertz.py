@@ -46,11 +46,12 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .contact import Contact, ContactPair, MeshSurface, Plane, Sphere
-from .forms import materials
-from .forms import virtual_power as vp
-from .scene import Scene, SceneError
-from .solver import ConvergenceError, NonlinearSolver
+from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface, Plane, Sphere
+from shoulder_fem.engine.solver import ConvergenceError, NonlinearSolver, StepperStats
+from shoulder_fem.families.base import Family, RunContext
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.scene import Scene, SceneError
 
 logger = logging.getLogger(__name__)
 
@@ -148,7 +149,7 @@ class HertzModel:
 
     def master(self) -> Plane | Sphere | MeshSurface:
         """The counterpart: an analytic rigid surface, or the block's top face."""
-        from .meshes.contact_bodies import BLOCK_TOP
+        from shoulder_fem.meshes.contact_bodies import BLOCK_TOP
 
         if self.deformable:
             return MeshSurface((BLOCK_TOP.id,))
@@ -157,9 +158,9 @@ class HertzModel:
         return Sphere((0.0, 0.0, self.socket_radius), self.socket_radius, concave=True)
 
 
-def build(scene: Scene, level: str | None, comm: MPI.Comm) -> HertzModel:
+def build(scene: Scene, level: str | None, comm: MPI.Comm, method: str | None = None) -> HertzModel:
     """Check the parameters together and mesh the quarter ball (and block) of ``level``."""
-    from .meshes.contact_bodies import build_ball_on_block, build_hemisphere
+    from shoulder_fem.meshes.contact_bodies import build_ball_on_block, build_hemisphere
 
     p = scene.values()
     level = level or scene.default_level
@@ -242,21 +243,11 @@ def dofs(model: HertzModel) -> int:
     return V.dofmap.index_map.size_global * V.dofmap.index_map_bs
 
 
-def family():
-    """The ``hertz`` family for :func:`shoulder_fem.api._families`.
-
-    One method: there is no rigid motion to split, so "coupled" is the only pipeline.
-    """
-    from .api import Family
-
-    return Family(build=build, methods={"coupled": run}, dofs=dofs)
-
-
 class HertzProblem:
     """The quarter ball (and block) with its contact, driven by the approach δ (collective)."""
 
     def __init__(self, model: HertzModel, options: dict | None = None):
-        from .meshes.contact_bodies import (
+        from shoulder_fem.meshes.contact_bodies import (
             BALL,
             BLOCK,
             BLOCK_BOTTOM,
@@ -450,8 +441,12 @@ class HertzProblem:
         return r[order], p[order]
 
 
-def run(model: HertzModel, recorder, monitor, fields_dir, options=None) -> None:
+def run_coupled(model: HertzModel, run: RunContext) -> None:
     """Press the ball to the scene's force in ``load_steps`` increments; record against Hertz."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     problem = HertzProblem(model, options)
     recorder.set_parameter("socket_radius", model.socket_radius, "m")
     if model.deformable:
@@ -529,7 +524,7 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
         pp = theory.max_pressure * np.sqrt(np.clip(1 - (rr / theory.contact_radius) ** 2, 0, 1))
         recorder.set_series("hertz_pressure_profile", rr, pp, "m", "Pa")
         if problem.u.function_space.mesh.comm.rank == 0:
-            from .plots import plot_pressure_profile
+            from shoulder_fem.io.plots import plot_pressure_profile
 
             plot_pressure_profile(
                 r,
@@ -539,11 +534,7 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
                 title=f"hertz ({model.geometry}, {model.level}): F = {reached:.4g} N",
             )
     stats = problem.solver.stats
-    recorder.count("steps", model.load_steps)
-    recorder.count("newton_iterations", stats.newton_iterations)
-    recorder.count("linear_solves", stats.linear_solves)
-    recorder.count("factorizations", stats.newton_iterations)
-    recorder.count("cutbacks", 0)
+    recorder.add_solver_counts(stats, StepperStats(steps=model.load_steps))
     recorder.extra("newton_iterations_per_solve", list(problem.newton))
     recorder.extra("uzawa_iterations_per_solve", list(problem.uzawa))
     cs = problem.contact.stats
@@ -559,7 +550,7 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
 
 
 def _write_fields(problem: HertzProblem, fields_dir) -> None:
-    from .results import FieldWriter
+    from shoulder_fem.io.results import FieldWriter
 
     mesh = problem.V.mesh
     V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
@@ -568,3 +559,7 @@ def _write_fields(problem: HertzProblem, fields_dir) -> None:
     pressure, shear = problem.contact.pressure_fields()
     with FieldWriter(mesh.comm, mesh, fields_dir / "contact.xdmf") as writer:
         writer.write([u1, pressure, shear], 1.0)
+
+
+# One method: there is no rigid motion to split, so "coupled" is the only pipeline.
+FAMILY = Family(name="hertz", build=build, methods={"coupled": run_coupled}, dofs=dofs)

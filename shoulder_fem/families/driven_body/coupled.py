@@ -19,27 +19,32 @@ import dolfinx
 import numpy as np
 import ufl
 
-from ..driven_body import (
+from shoulder_fem.engine.fem import constant
+from shoulder_fem.engine.solver import NonlinearSolver
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.driven_body.model import (
     BodyOutputs,
     DrivenBody,
     NewmarkState,
     boundary_reaction,
     clamp_dofs,
-    constant,
     dof_coordinates,
     march_driven_body,
     quadrature,
     vector_space,
 )
-from ..forms import kinematics, materials
-from ..forms import virtual_power as vp
-from ..solver import NonlinearSolver
+from shoulder_fem.forms import kinematics, materials
+from shoulder_fem.forms import virtual_power as vp
 
 logger = logging.getLogger(__name__)
 
 
-def run_driven_body(model: DrivenBody, recorder, monitor, fields_dir, options=None) -> None:
+def run_coupled(model: DrivenBody, run: RunContext) -> None:
     """Run the coupled method on a driven body; results go to ``recorder`` and ``fields_dir``."""
+    recorder = run.recorder
+    monitor = run.monitor
+    fields_dir = run.fields
+    options = run.options
     mesh = model.mesh
     comm = mesh.comm
     V = vector_space(model)

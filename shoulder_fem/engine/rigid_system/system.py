@@ -84,13 +84,22 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .rigid import RigidState, exp_so3, hat, hats, log_so3, right_jacobian
-from .solver import ConvergenceError, SolveStats, _reason_name, default_snes_options, unique_prefix
-from .springs import GROUND, Spring, spring_response
+from shoulder_fem.engine.fem import owned_flags
+from shoulder_fem.engine.mass import MassProperties
+from shoulder_fem.engine.rigid import RigidState, exp_so3, hat, hats, log_so3, right_jacobian
+from shoulder_fem.engine.solver import (
+    ConvergenceError,
+    SolveStats,
+    default_snes_options,
+    reason_name,
+    set_from_options,
+    unique_prefix,
+)
+from shoulder_fem.engine.springs import GROUND, Spring, spring_response
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["MassProperties", "RigidBody", "RigidSystem", "Tie", "mass_properties"]
+__all__ = ["RigidBody", "RigidSystem", "Tie"]
 
 
 @contextlib.contextmanager
@@ -291,42 +300,6 @@ def _check_inertia(inertia: np.ndarray, where: str) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class MassProperties:
-    """Mass (kg), centre of mass (m) and inertia tensor about it (kg m², reference frame)."""
-
-    mass: float
-    centre: np.ndarray
-    inertia: np.ndarray
-
-
-def mass_properties(mesh: dolfinx.mesh.Mesh, density: float, dx: ufl.Measure) -> MassProperties:
-    """Mass properties of a body's volume mesh (collective), for dynamic scenes.
-
-    Args:
-        mesh: The body's mesh.
-        density: Uniform density ρ (kg/m³) (or a UFL expression).
-        dx: Cell measure of the body (``ufl.Measure("dx", domain=mesh)``, possibly restricted
-            to its cells), with a quadrature degree exact for quadratic integrands.
-    """
-    from .forms import rigid_body as rb
-
-    comm = mesh.comm
-
-    def integral(form: ufl.Form) -> float:
-        value = dolfinx.fem.assemble_scalar(dolfinx.fem.form(form))
-        return comm.allreduce(value, op=MPI.SUM)
-
-    m = integral(rb.mass(density, dx))
-    if not m > 0:
-        raise ValueError(f"mass_properties: the body has no mass ({m} kg)")
-    x = ufl.SpatialCoordinate(mesh)
-    centre = np.array([integral(f) for f in rb.first_moment(density, x, dx)]) / m
-    gm = x - ufl.as_vector(centre.tolist())
-    inertia = np.array([[integral(f) for f in row] for row in rb.inertia_tensor(density, gm, dx)])
-    return MassProperties(m, centre, inertia)
-
-
-@dataclass(frozen=True)
 class Tie:
     """The nodes of surface ``surface`` follow rigid body ``body`` exactly."""
 
@@ -380,20 +353,6 @@ class RigidSolveStats(SolveStats):
     jacobian_s: float = 0.0
     fe_assembly_s: float = 0.0
     reduction_s: float = 0.0
-
-
-def _owned_flags(imap, local_nodes: np.ndarray, comm: MPI.Comm) -> np.ndarray:
-    """Flags (owned + ghost nodes) of ``local_nodes`` marked on any rank (collective)."""
-    vec = dolfinx.la.create_petsc_vector(imap, 1)
-    with vec.localForm() as loc:
-        loc.set(0.0)
-        loc.array[local_nodes] = 1.0
-    vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-    vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-    with vec.localForm() as loc:
-        flags = loc.array > 0.5
-    vec.destroy()
-    return flags
 
 
 class RigidSystem:
@@ -512,7 +471,7 @@ class RigidSystem:
             def nodes_of(surface: str) -> np.ndarray:
                 tags, tag = surfaces[surface]
                 dofs = dolfinx.fem.locate_dofs_topological(V, tags.dim, tags.find(tag))
-                return _owned_flags(imap, dofs, comm)
+                return owned_flags(imap, dofs, comm)
 
             taken = np.zeros(n_all, dtype=bool)
             fixed_all = np.zeros(n_all, dtype=bool)
@@ -577,15 +536,9 @@ class RigidSystem:
         opts = default_snes_options() | {"snes_divergence_tolerance": -1.0} | dict(options or {})
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(self.prefix)
-        db = PETSc.Options()
-        for key, value in opts.items():
-            db[f"{self.prefix}{key}"] = value
         self.snes.setFunction(self._residual, self._r)
         self.snes.setJacobian(self._jacobian, self._J, self._J)
-        self.snes.setFromOptions()
-        self.snes.getKSP().setFromOptions()
-        for key in opts:
-            db.delValue(f"{self.prefix}{key}")
+        set_from_options(self.snes, opts)
         self.snes.setConvergenceHistory(length=200, reset=True)
         self._linesearch = str(opts["snes_linesearch_type"])
 
@@ -596,10 +549,7 @@ class RigidSystem:
 
     @linesearch.setter
     def linesearch(self, kind: str) -> None:
-        db = PETSc.Options()
-        db[f"{self.prefix}snes_linesearch_type"] = kind
-        self.snes.setFromOptions()
-        db.delValue(f"{self.prefix}snes_linesearch_type")
+        set_from_options(self.snes, {"snes_linesearch_type": kind}, ksp=False)
         self._linesearch = kind
 
     @property
@@ -1054,7 +1004,7 @@ class RigidSystem:
                 self._K.PtAP(self._P, self._C)
                 J.axpy(1.0, self._C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             if self.contact is not None:
-                from .contact import add_to_pattern
+                from shoulder_fem.engine.contact import add_to_pattern
 
                 Kc = self.contact.jacobian_matrix(self._K)
                 with _timed(self.stats, "reduction_s"):
@@ -1116,7 +1066,7 @@ class RigidSystem:
             # A failed factorization must not be reused by the next solve (MUMPS then stops
             # with INFOG(1) = -3): the next solve factorizes afresh.
             self.snes.getKSP().getPC().reset()
-            raise ConvergenceError(step, petsc_error or _reason_name(reason), its, self.prefix)
+            raise ConvergenceError(step, petsc_error or reason_name(reason), its, self.prefix)
         self._update_state(x)
         if self._fe:
             self._assemble_F()

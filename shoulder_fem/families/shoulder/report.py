@@ -27,24 +27,21 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import matplotlib.pyplot as plt
+import matplotlib.tri as mtri
+import numpy as np
+from matplotlib.collections import PolyCollection
+from matplotlib.ticker import MaxNLocator
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.tri as mtri  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import PolyCollection  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-
-from .compare import resource_ratios  # noqa: E402
-from .plots import _STYLE, _save  # noqa: E402
-from .results import atomic_write_json, load_summary, to_jsonable  # noqa: E402
+from shoulder_fem.families.base import BenchReport
+from shoulder_fem.io.compare import resource_ratios
+from shoulder_fem.io.plots import METHOD_STYLE, save_figure
+from shoulder_fem.io.results import atomic_write_json, atomic_write_text, load_summary, to_jsonable
 
 __all__ = [
     "FIGURES",
@@ -701,20 +698,20 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
     if mappable is not None:
         fig.colorbar(mappable, ax=axes, shrink=0.85, label="contact pressure (MPa)")
     fig.suptitle("Glenoid contact pressure (view along the glenoid axis)")
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _plot_max_pressure(runs: dict[str, RunData], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for m, r in runs.items():
         a = r.angles
-        ax.plot(a, r.max_pressure(a) * MPA, marker="o", ms=4, label=m, **_STYLE.get(m, {}))
+        ax.plot(a, r.max_pressure(a) * MPA, marker="o", ms=4, label=m, **METHOD_STYLE.get(m, {}))
     ax.set_xlabel("humeral internal rotation (deg)")
     ax.set_ylabel("maximum glenoid pressure (MPa)")
     ax.set_title("Maximum glenoid contact pressure")
     ax.grid(alpha=0.3)
     ax.legend()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _plot_muscle_forces(runs: dict[str, RunData], path: Path) -> None:
@@ -744,7 +741,7 @@ def _plot_muscle_forces(runs: dict[str, RunData], path: Path) -> None:
     ax.set_title("Muscle forces at the scapular footprints")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=2)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _plot_section(runs: dict[str, RunData], path: Path) -> dict[str, int]:
@@ -805,7 +802,7 @@ def _plot_section(runs: dict[str, RunData], path: Path) -> dict[str, int]:
     if coll is not None:
         fig.colorbar(coll, ax=axes[0].tolist(), shrink=0.9, label="von Mises stress (MPa)")
     fig.suptitle("Von Mises stress in the horizontal section of the scapula")
-    _save(fig, path)
+    save_figure(fig, path)
     return {m: len(s[0]) for m, s in sections.items()}
 
 
@@ -841,7 +838,7 @@ def _plot_von_mises(
     ax.set_title(f"Nodal von Mises stress ({angles})" + (f"\n{note}" if note else ""), fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    _save(fig, scatter)
+    save_figure(fig, scatter)
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     diff = d - c
@@ -867,7 +864,7 @@ def _plot_von_mises(
         f"Nodal von Mises differences ({angles})" + (f"\n{note}" if note else ""), fontsize=9
     )
     ax.grid(alpha=0.3)
-    _save(fig, hist)
+    save_figure(fig, hist)
 
 
 def _plot_resources(table: dict[str, dict[str, Any]], path: Path) -> None:
@@ -905,7 +902,7 @@ def _plot_resources(table: dict[str, dict[str, Any]], path: Path) -> None:
         ax.margins(y=0.15)
     fig.suptitle("Resources (sums over ranks; part figures are the stages of the decoupled run)")
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1180,19 +1177,6 @@ def _markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 # --------------------------------------------------------------------------------------------
 # Entry point
 # --------------------------------------------------------------------------------------------
@@ -1278,5 +1262,16 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
     }
     report = to_jsonable(report)
     atomic_write_json(out_dir / "report.json", report)
-    _atomic_write_text(out_dir / "report.md", _markdown(report) + "\n")
+    atomic_write_text(out_dir / "report.md", _markdown(report) + "\n")
     return report
+
+
+def bench_report(bench: BenchReport) -> str:
+    """The ``bench`` hook: :func:`write_report` of the two runs; returns the comparison table."""
+    table = None
+    if bench.comm.rank == 0:
+        report = write_report(
+            bench.folder / "coupled", bench.folder / "decoupled", bench.folder, bench.level
+        )
+        table = comparison_table(report)
+    return bench.comm.bcast(table, root=0)

@@ -1,0 +1,206 @@
+"""The scene commands: scenes, run, compare, bench.
+
+Each takes the parsed arguments and returns the exit status; input errors are raised as
+``SceneError`` / ``OutputError`` and a failed solve as :class:`SolverFailure` (``main`` turns
+them into one line and an exit status).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+class SolverFailure(RuntimeError):
+    """A run stopped on a solver failure (exit status 3)."""
+
+
+def error(message: str) -> None:
+    """Print ``shoulder-fem: error: <message>`` on rank 0's stderr."""
+    from mpi4py import MPI
+
+    if MPI.COMM_WORLD.rank == 0:
+        print(f"shoulder-fem: error: {message}", file=sys.stderr)
+
+
+def say(text: str) -> None:
+    """Print ``text`` on rank 0's stdout."""
+    from mpi4py import MPI
+
+    if MPI.COMM_WORLD.rank == 0:
+        print(text, flush=True)
+
+
+def cmd_scenes(args) -> int:
+    """List built-in scenes, one line each."""
+    from shoulder_fem.scene import available_scenes, load_scene
+
+    for name in available_scenes():
+        scene = load_scene(name)
+        say(f"{name:28s} {scene.summary}")
+    return 0
+
+
+def _prepare(args):
+    from shoulder_fem.api import check_method
+    from shoulder_fem.engine.solver import linear_solver_options
+    from shoulder_fem.scene import load_scene
+
+    scene = load_scene(args.scene).with_overrides(args.sets)
+    if getattr(args, "method", None):
+        check_method(args.method)
+    scene.level(args.level)
+    return scene, linear_solver_options(args.linear_solver)
+
+
+def cmd_run(args) -> int:
+    """Run one scene with one method."""
+    from shoulder_fem.api import RunFailed, run
+
+    scene, options = _prepare(args)
+    try:
+        result = run(
+            scene, args.method, args.level, args.out, solver_options=options, make_parents=False
+        )
+    except RunFailed as err:
+        raise SolverFailure(str(err)) from err
+    say(_probe_lines(result.data))
+    say(f"results: {result.folder}")
+    return 0
+
+
+def _probe_lines(summary: dict) -> str:
+    res = summary["resources"]
+    lines = [
+        f"{summary['scene']} / {summary['method']} / {summary['level']}: "
+        f"CPU {res['cpu_s']:.2f} s, wall {res['wall_s']:.2f} s, "
+        f"peak memory {res['peak_rss_mb']:.0f} MB, {summary.get('dofs')} DOFs, "
+        f"{res['ranks']} rank(s)"
+    ]
+    for name, value in summary["probes"].items():
+        unit = summary.get("probe_units", {}).get(name) or ""
+        lines.append(
+            f"  {name:28s} {value:.6g} {unit}"
+            if isinstance(value, float)
+            else f"  {name:28s} {value} {unit}"
+        )
+    return "\n".join(lines)
+
+
+def cmd_compare(args) -> int:
+    """Compare two finished runs; write comparison.json and figures."""
+    from mpi4py import MPI
+
+    from shoulder_fem.io.results import OutputDir, load_summary
+
+    comm = MPI.COMM_WORLD
+    ref, other = load_summary(args.ref), load_summary(args.other)
+    with OutputDir(args.out, comm) as out:
+        report = write_comparison(ref, other, out.path, comm)
+    say(_comparison_lines(report))
+    say(f"comparison: {args.out}")
+    return 0
+
+
+def write_comparison(ref: dict, other: dict, folder: Path, comm) -> dict:
+    """Metrics + figures of ``other`` against ``ref`` into ``folder`` (rank 0 writes)."""
+    from shoulder_fem.io.compare import compare_summaries
+    from shoulder_fem.io.results import atomic_write_json
+
+    report = compare_summaries(ref, other)
+    if comm.rank == 0:
+        from shoulder_fem.io import plots
+
+        atomic_write_json(folder / "comparison.json", report)
+        for name in report["series"]:
+            if name.endswith("_analytic"):
+                continue
+            analytic = ref["series"].get(f"{name}_analytic")
+            reference = None
+            if analytic is not None:
+                reference = (analytic["x"], analytic["y"], "analytic")
+            plots.plot_series([ref, other], name, folder / f"{name}.png", reference=reference)
+        plots.plot_resources({ref["method"]: ref, other["method"]: other}, folder / "resources.png")
+    return report
+
+
+def _comparison_lines(report: dict) -> str:
+    lines = [
+        f"{report['scene']}: {report['other']['method']} against {report['reference']['method']}"
+    ]
+    for name, p in report["probes"].items():
+        lines.append(
+            f"  {name:28s} ref {p['reference']:.6g}  other {p['other']:.6g}  "
+            f"rel. diff {p['relative_difference']:+.2e}"
+        )
+    for name, s in report["series"].items():
+        lines.append(
+            f"  series {name:21s} max rel. diff {s['max_rel_diff']:.2e}  "
+            f"correlation {s['correlation']:.6f}  slope {s['slope']:.4f}"
+        )
+    r = report["resources"]
+    lines.append(f"  speed-up (CPU) {r['speedup_cpu']:.2f}x   memory ratio {r['memory_ratio']:.2f}")
+    return "\n".join(lines)
+
+
+def cmd_bench(args) -> int:
+    """Run both methods, then write the family's report (report.json, report.md, figures)."""
+    from mpi4py import MPI
+
+    from shoulder_fem.api import METHODS, RunFailed, run, scene_family
+    from shoulder_fem.families.base import BenchReport
+    from shoulder_fem.io.results import OutputDir
+
+    comm = MPI.COMM_WORLD
+    scene, options = _prepare(args)
+    fam = scene_family(scene)  # both methods, before anything runs
+    level = args.level or scene.default_level
+    with OutputDir(args.out, comm) as out:
+        runs = {}
+        for method in METHODS:
+            try:
+                runs[method] = run(
+                    scene, method, args.level, out.path / method, comm=comm, solver_options=options
+                ).data
+            except RunFailed as err:
+                out.commit()
+                raise SolverFailure(str(err)) from err
+        bench = BenchReport(scene, level, runs, out.path, comm)
+        text = (fam.report or generic_report)(bench)
+    for method, data in runs.items():
+        if data.get("status") != "ok":
+            say(f"{method}: {data.get('status')}: {data.get('message')}")
+    say(text)
+    say(f"report: {args.out / 'report.md'}")
+    return 0
+
+
+def generic_report(bench) -> str:
+    """The ``bench`` report of a family without its own: metrics, figures, resources table."""
+    from shoulder_fem.io.compare import resources_table
+    from shoulder_fem.io.results import atomic_write_json, atomic_write_text
+
+    coupled, decoupled = bench.runs["coupled"], bench.runs["decoupled"]
+    report = write_comparison(coupled, decoupled, bench.folder, bench.comm)
+    report["speedup_cpu"] = report["resources"]["speedup_cpu"]
+    report["memory_ratio"] = report["resources"]["memory_ratio"]
+    table = resources_table(bench.runs)
+    if bench.comm.rank == 0:
+        atomic_write_json(bench.folder / "report.json", report)
+        md = [
+            f"# {bench.scene.name}: coupled against decoupled ({bench.level})",
+            "",
+            "## Resources",
+            "",
+            table,
+            "",
+            "## Results",
+            "",
+            "```",
+            _comparison_lines(report),
+            "```",
+            "",
+        ]
+        atomic_write_text(bench.folder / "report.md", "\n".join(md))
+    lines = [_probe_lines(coupled), _probe_lines(decoupled), _comparison_lines(report), table]
+    return "\n".join(lines)

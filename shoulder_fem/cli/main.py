@@ -1,0 +1,145 @@
+"""The ``shoulder-fem`` entry point: parser, logging, dispatch, exit statuses.
+
+``main(argv) -> int``; heavy imports (dolfinx, PETSc) happen inside the commands so that
+``--help`` is instant. Under ``mpirun -n N`` every command behaves the same and writes its
+output once. Errors in the input print one line naming what is wrong and exit with status 2;
+a diverged solve exits with status 3 after writing the completed steps. SIGTERM (``kill``, a
+batch system's time limit) unwinds the run like an error: the unfinished output folder is
+removed, and the command exits with status 143.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+
+from shoulder_fem.cli.args import add_run_arguments
+from shoulder_fem.cli.mesh import add_mesh_parser
+
+logger = logging.getLogger("shoulder_fem")
+
+EXIT_INPUT = 2
+EXIT_SOLVER = 3
+EXIT_TERMINATED = 128 + signal.SIGTERM  # 143, the shell's status for a process ended by SIGTERM
+
+
+class _Terminated(SystemExit):
+    """Raised by the SIGTERM handler.
+
+    Not an ``Exception``: no ``except Exception`` stops it on its way out, and every ``with``
+    block (the output folders) unwinds.
+    """
+
+
+def _raise_on_sigterm(signum, frame) -> None:
+    raise _Terminated(EXIT_TERMINATED)
+
+
+class _RankFilter(logging.Filter):
+    def __init__(self, rank: int, all_ranks: bool):
+        super().__init__()
+        self.rank, self.all_ranks = rank, all_ranks
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.rank_prefix = f"CPU {self.rank}: " if self.all_ranks else ""
+        return self.all_ranks or self.rank == 0
+
+
+def setup_logging(verbosity: int, all_ranks: bool) -> None:
+    """Configure the package logger once: rank 0 only unless ``all_ranks``."""
+    from mpi4py import MPI
+
+    # Claim the root logger first, so a library's later logging.basicConfig (the form compiler's
+    # build steps log at INFO through it) is a no-op and stays quiet below -vv.
+    logging.basicConfig(level=logging.DEBUG if verbosity > 1 else logging.WARNING)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.addFilter(_RankFilter(MPI.COMM_WORLD.rank, all_ranks))
+    handler.setFormatter(logging.Formatter("%(asctime)s %(rank_prefix)s%(message)s", "%H:%M:%S"))
+    logger.handlers[:] = [handler]
+    logger.setLevel({0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG))
+    logger.propagate = False
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (one sub-command each)."""
+    parser = argparse.ArgumentParser(
+        prog="shoulder-fem",
+        description="Large motions with small strains: coupled and decoupled FEniCSx solvers.",
+    )
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=1, help="more log lines (-vv: debug)"
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    parser.add_argument(
+        "--log-all-ranks", action="store_true", help="log from every MPI rank, prefixed 'CPU n:'"
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    sub.add_parser("scenes", help="list the built-in scenes")
+
+    p = sub.add_parser("run", help="run one scene with one method")
+    p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    p.add_argument("--method", required=True, choices=["coupled", "decoupled"])
+    add_run_arguments(p)
+
+    p = sub.add_parser("compare", help="compare two runs (reference first)")
+    p.add_argument("ref", type=Path, help="output folder of the reference run (coupled)")
+    p.add_argument("other", type=Path, help="output folder of the other run (decoupled)")
+    p.add_argument("--out", type=Path, required=True, help="folder for metrics and figures")
+
+    p = sub.add_parser("bench", help="run both methods and write the comparison report")
+    p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    add_run_arguments(p)
+
+    add_mesh_parser(sub)
+    return parser
+
+
+def pin_threads() -> None:
+    """One BLAS/OpenMP thread per MPI rank, unless the user set it (before numpy loads).
+
+    OpenBLAS/OpenMP threads on top of MPI ranks slow MUMPS down here; OpenBLAS reads these
+    variables when it loads, so entry points call this first.
+    """
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status."""
+    pin_threads()
+    args = build_parser().parse_args(argv)
+    verbosity = 0 if args.quiet else args.verbose
+    setup_logging(verbosity, args.log_all_ranks)
+    import matplotlib
+
+    matplotlib.use("Agg")  # figures are files; no display needed
+    from shoulder_fem.cli import commands
+    from shoulder_fem.cli.mesh import cmd_mesh
+    from shoulder_fem.io.results import OutputError
+    from shoulder_fem.scene import SceneError
+
+    signal.signal(signal.SIGTERM, _raise_on_sigterm)
+    try:
+        return {
+            "scenes": commands.cmd_scenes,
+            "run": commands.cmd_run,
+            "compare": commands.cmd_compare,
+            "bench": commands.cmd_bench,
+            "mesh": cmd_mesh,
+        }[args.command](args)
+    except (SceneError, OutputError) as err:
+        commands.error(str(err))
+        return EXIT_INPUT
+    except commands.SolverFailure as err:
+        commands.error(str(err))
+        return EXIT_SOLVER
+    except _Terminated:
+        out = getattr(args, "out", None)
+        where = f": the unfinished output {out} was removed" if out else ""
+        commands.error(f"stopped by SIGTERM{where}")
+        return EXIT_TERMINATED

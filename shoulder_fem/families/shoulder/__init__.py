@@ -1,0 +1,21 @@
+"""The ``shoulder`` family: the paper's glenohumeral internal rotation, coupled and decoupled."""
+
+from shoulder_fem.families.base import Family
+from shoulder_fem.families.shoulder.model import (
+    ShoulderModel,
+    build,
+    dofs,
+    run_coupled,
+    run_decoupled,
+)
+from shoulder_fem.families.shoulder.report import bench_report
+
+__all__ = ["FAMILY", "ShoulderModel"]
+
+FAMILY = Family(
+    name="shoulder",
+    build=build,
+    methods={"coupled": run_coupled, "decoupled": run_decoupled},
+    dofs=dofs,
+    report=bench_report,
+)

@@ -1,0 +1,1 @@
+"""Output folders and summaries, resources, comparisons, plots, CT images."""

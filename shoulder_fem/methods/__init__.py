@@ -1,1 +1,0 @@
-"""The two pipelines: coupled (method #1) and decoupled (method #2)."""

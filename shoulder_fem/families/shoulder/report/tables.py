@@ -1,0 +1,265 @@
+"""The shoulder report as text: the Markdown of ``report.md`` and the console's tables.
+
+Everything here reads the report's JSON (as :func:`write_report` returns it or ``report.json``
+holds it), so a report read back from disk prints the same tables.
+"""
+
+from __future__ import annotations
+
+from shoulder_fem.families.shoulder.report.contents import (
+    FIGURES,
+    METHODS,
+    MOTION_SERIES,
+    RESOURCE_COLUMNS,
+    RESOURCE_LABELS,
+    RESOURCE_ROWS,
+    TIME_SPLIT,
+    fmt,
+)
+
+
+def _metric_rows(report: dict) -> list[tuple[str, str]]:
+    fa, st = report.get("final_angle_deg", {}), report.get("status", {})
+    rows = [
+        ("status (coupled / decoupled)", f"{st.get('coupled')} / {st.get('decoupled')}"),
+        (
+            "final angle deg (coupled / decoupled)",
+            f"{fmt(fa.get('coupled'), 'g')} / {fmt(fa.get('decoupled'), 'g')}",
+        ),
+        (
+            "angles compared deg",
+            ", ".join(fmt(a, "g") for a in report.get("angles_compared_deg", [])) or "none",
+        ),
+        ("CPU speed-up (coupled / decoupled)", fmt(report.get("speedup_cpu"), ".2f")),
+        ("wall speed-up (coupled / decoupled)", fmt(report.get("speedup_wall"), ".2f")),
+        ("peak memory ratio (decoupled / coupled)", fmt(report.get("memory_ratio"), ".2f")),
+        ("max pressure: largest relative error", fmt(report.get("max_pressure_rel_error"), ".2%")),
+        (
+            "muscle forces: largest relative error",
+            fmt(report.get("muscle_force_rel_error"), ".2%"),
+        ),
+        (
+            "contact force: largest relative error",
+            fmt(report.get("contact_force_rel_error"), ".2%"),
+        ),
+        *(
+            [
+                (
+                    "cuff-on-head contact force: largest relative error",
+                    fmt(report["muscle_bone_contact_force_rel_error"], ".2%"),
+                )
+            ]
+            if report.get("muscle_bone_contact_force_rel_error") is not None
+            else []
+        ),
+        (
+            "contact region Jaccard index (min)",
+            fmt(report.get("contact_region_jaccard_min"), ".3f"),
+        ),
+        ("von Mises correlation", fmt(report.get("von_mises_correlation"), ".4f")),
+        ("von Mises slope (through origin)", fmt(report.get("von_mises_slope"), ".4f")),
+        ("von Mises max abs error MPa", fmt(report.get("von_mises_max_abs_error_mpa"), ".3g")),
+        (
+            "von Mises max abs error / coupled max",
+            fmt(report.get("von_mises_max_rel_error"), ".2%"),
+        ),
+    ]
+    return rows
+
+
+def _per_angle_rows(report: dict) -> tuple[list[str], list[list[str]]]:
+    head = [
+        "angle deg",
+        "p max cpl MPa",
+        "p max dec MPa",
+        "rel err",
+        "infra cpl N",
+        "infra dec N",
+        "subscap cpl N",
+        "subscap dec N",
+        "Jaccard",
+    ]
+    rows = []
+    for r in report.get("per_angle", []):
+        rows.append(
+            [
+                fmt(r["angle_deg"], "g"),
+                fmt(r["max_pressure_mpa"]["coupled"], ".3f"),
+                fmt(r["max_pressure_mpa"]["decoupled"], ".3f"),
+                fmt(r["max_pressure_rel_error"], "+.2%"),
+                fmt(r["infraspinatus_force_n"]["coupled"], ".2f"),
+                fmt(r["infraspinatus_force_n"]["decoupled"], ".2f"),
+                fmt(r["subscapularis_force_n"]["coupled"], ".2f"),
+                fmt(r["subscapularis_force_n"]["decoupled"], ".2f"),
+                fmt(r["contact_region_jaccard"], ".3f"),
+            ]
+        )
+    return head, rows
+
+
+def _time_rows(report: dict) -> tuple[list[str], list[list[str]]]:
+    split = report.get("time_split") or {}
+    head = ["wall s (slowest rank)", "coupled", "decoupled part 1"]
+    rows = [
+        [label] + [fmt((split.get(c) or {}).get(key), ".1f") for c in ("coupled", "part1")]
+        for key, label in TIME_SPLIT
+    ]
+    return head, rows
+
+
+def _motion_rows(report: dict) -> tuple[list[str], list[list[str]]]:
+    """Per angle: the humerus's swing and the contact's place on the humeral cartilage."""
+    head = ["angle deg"]
+    for _, label in MOTION_SERIES:
+        head += [f"{label} cpl deg", f"{label} dec deg"]
+    rows = []
+    for r in report.get("per_angle", []):
+        if "humeral_swing_deg" not in r:
+            continue
+        rows.append([fmt(r["angle_deg"], "g")])
+        for name, _ in MOTION_SERIES:
+            m = r[f"{name}_deg"]
+            rows[-1] += [fmt(m["coupled"], ".1f"), fmt(m["decoupled"], ".1f")]
+    return head, rows
+
+
+def _resource_rows(report: dict) -> tuple[list[str], list[list[str]]]:
+    table = report.get("resources", {})
+    head = [""] + [RESOURCE_LABELS[k] for k in RESOURCE_COLUMNS]
+    rows = [
+        [label] + [fmt(table.get(k, {}).get(key), spec) for k in RESOURCE_COLUMNS]
+        for key, label, spec in RESOURCE_ROWS
+    ]
+    return head, rows
+
+
+def _markdown_table(head: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "|".join(["--:"] * (len(head) - 1)) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _text_table(head: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(str(x)) for x in col) for col in zip(head, *rows, strict=True)]
+    fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
+    lines = [fmt.format(*head), "  ".join("-" * w for w in widths)]
+    lines += [fmt.format(*r) for r in rows]
+    return "\n".join(lines)
+
+
+def comparison_table(report: dict) -> str:
+    """The report's key numbers as a plain-text table (for the console).
+
+    Args:
+        report: as returned by :func:`write_report` (or read back from ``report.json``).
+
+    Returns:
+        Several aligned tables: key metrics, per-angle values and resources.
+    """
+    title = f"{report.get('scene') or 'shoulder'} ({report.get('level')}): coupled vs decoupled"
+    parts = [
+        title,
+        "=" * len(title),
+        _text_table(["metric", "value"], [list(r) for r in _metric_rows(report)]),
+    ]
+    for note in report.get("notes", []):
+        parts.append(f"note: {note}")
+    head, rows = _per_angle_rows(report)
+    if rows:
+        parts += ["", _text_table(head, rows)]
+    head, rows = _resource_rows(report)
+    parts += ["", _text_table(["resources"] + head[1:], rows)]
+    return "\n".join(parts)
+
+
+def _markdown_resources(report: dict) -> list[str]:
+    """The Markdown of the resources table (Table II) and of where the Newton time went."""
+    lines: list[str] = []
+    head, rows = _resource_rows(report)
+    lines += [
+        "",
+        "## Resources (Table II)",
+        "",
+        _markdown_table(head, rows),
+        "",
+        "CPU time and memory are sums over ranks; the totals are whole runs (meshing "
+        "included), the parts are the stages of the decoupled run. Temporary and results disk "
+        "are measured per run only (– per part). Each run's peak memory is measured from its "
+        "own start (freed memory given back first), though both ran in one process. DOFs: the "
+        "coupled displacement DOFs; part 1: its Newton unknowns (the free soft-tissue DOFs and "
+        "6 per rigid body; the tied bone nodes are not unknowns); part 2: the scapula's DOFs.",
+    ]
+    head, rows = _time_rows(report)
+    if any(cell != "–" for row in rows for cell in row[1:]):
+        lines += [
+            "",
+            "Where the Newton time went (wall seconds; part 2 is one LU and a few solves):",
+            "",
+            _markdown_table(head, rows),
+        ]
+    return lines
+
+
+def _markdown_motion(report: dict) -> list[str]:
+    """The Markdown of the humeral swing and contact table (none if a value is missing)."""
+    lines: list[str] = []
+    head, rows = _motion_rows(report)
+    half = report.get("humeral_cap_half_angle_deg")
+    if rows and all(cell != "–" for row in rows for cell in row[1:]):
+        lines += [
+            "",
+            "## Humeral swing and the contact on the humeral cartilage",
+            "",
+            "Swing: the angle by which the humerus's shaft axis turns (the rotation's part that "
+            "is not a twist about it). Contact: where the glenoid presses on the humeral "
+            "cartilage, in degrees from the cartilage's axis (force-weighted mean and largest), "
+            f"in the humerus's reference geometry; the cartilage ends at {fmt(half, '.1f')} "
+            "deg. A contact that reaches that edge has run off the articular surface.",
+            "",
+            _markdown_table(head, rows),
+        ]
+    return lines
+
+
+def markdown_report(report: dict) -> str:
+    """The report as Markdown (``report.md``): runs, key metrics, resources, per angle, figures.
+
+    Args:
+        report: as returned by :func:`write_report` (or read back from ``report.json``).
+
+    Returns:
+        The Markdown text (no final newline).
+    """
+    st, msg = report.get("status", {}), report.get("messages", {})
+    lines = [
+        f"# Shoulder internal rotation: coupled against decoupled ({report.get('level')})",
+        "",
+        f"Scene `{report.get('scene')}`, level `{report.get('level')}`. Reference: the coupled "
+        "run; relative errors are (decoupled − coupled) / coupled.",
+        "",
+    ]
+    for m in METHODS:
+        line = f"- **{m}**: status `{st.get(m)}`, reached "
+        line += f"{fmt(report.get('final_angle_deg', {}).get(m), 'g')} deg"
+        if msg.get(m):
+            line += f" ({msg[m]})"
+        lines.append(line)
+    lines += [
+        "",
+        "## Key metrics",
+        "",
+        _markdown_table(["metric", "value"], [list(r) for r in _metric_rows(report)]),
+    ]
+    notes = report.get("notes", [])
+    if notes:
+        for n in notes:
+            lines += ["", f"*Note:* {n}"]
+    lines += _markdown_resources(report)
+    head, rows = _per_angle_rows(report)
+    lines += ["", "## Per output angle", ""]
+    lines += [_markdown_table(head, rows)] if rows else ["No common output angle."]
+    lines += _markdown_motion(report)
+    lines += ["", "## Figures", ""]
+    for name, caption in FIGURES.items():
+        lines += [f"### {caption}", "", f"![{caption}]({name})", ""]
+    return "\n".join(lines)

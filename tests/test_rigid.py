@@ -13,10 +13,8 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ellipk
 
-from shoulder_fem.engine.rigid import (
-    NewtonEuler,
-    RigidState,
-    SpinUp,
+from shoulder_fem.engine.rigid import NewtonEuler, RigidState, SpinUp
+from shoulder_fem.engine.so3 import (
     exp_so3,
     hat,
     inverse_right_jacobian,

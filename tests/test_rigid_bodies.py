@@ -12,8 +12,8 @@ import ufl
 from _util import quadratic_orders, taylor_rates
 from mpi4py import MPI
 
-from shoulder_fem.engine.rigid import log_so3, rotation_about
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.so3 import log_so3, rotation_about
 from shoulder_fem.engine.springs import GROUND, Spring, spring_response
 
 pytestmark = pytest.mark.mpi

@@ -26,8 +26,9 @@ from mpi4py import MPI
 from test_rigid_bodies import six_springs, small_block
 
 from shoulder_fem.engine.mass import mass_properties
-from shoulder_fem.engine.rigid import NewtonEuler, hat, log_so3, rotation_about
+from shoulder_fem.engine.rigid import NewtonEuler
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.so3 import hat, log_so3, rotation_about
 from shoulder_fem.engine.springs import GROUND, Spring
 
 

@@ -22,7 +22,7 @@ import ufl
 from mpi4py import MPI
 
 from shoulder_fem import api
-from shoulder_fem.engine.rigid import hat
+from shoulder_fem.engine.so3 import hat
 from shoulder_fem.families.shoulder import model as SH
 from shoulder_fem.families.shoulder import report as shoulder_report
 from shoulder_fem.meshes import shoulder as MS

@@ -86,7 +86,7 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.fem import constant
 from shoulder_fem.engine.mass import mass_properties
-from shoulder_fem.engine.rigid import exp_so3, log_so3, project_to_so3
+from shoulder_fem.engine.so3 import exp_so3, log_so3, project_to_so3
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     direct_solver_options,

@@ -1,22 +1,9 @@
-"""Rigid-body kinematics and dynamics: SO(3) utilities, Newton–Euler integrator, prescribed motion.
+"""Rigid-body dynamics: the state, the Newton–Euler integrator, a prescribed spin-up.
 
-This module is the rigid part of the paper's eq. (10),
-
-    m a_G = F,        I_G dΩ/dt + Ω × I_G Ω = M_G,
-
-written with the body-frame angular velocity Ω (rad/s) and the body-frame inertia tensor about the
-centre of mass I_G (kg m²). It is pure numpy/scipy: nothing here knows about meshes or dolfinx.
-
-Conventions (used everywhere in the package):
-
-* ``R`` maps body-frame components to inertial-frame components: ``x = x_G + R X_body``.
-* ``omega`` is the **body-frame** angular velocity, ``Ṙ = R hat(omega)``; the inertial-frame
-  (spatial) angular velocity is ``R omega``.
-* Rotations are updated multiplicatively on SO(3): ``R ← R exp(hat(dθ))`` for a body-frame
-  increment, ``R ← exp(hat(dθ)) R`` for a spatial one, never by adding angles.
-* Rotation vectors ``phi`` (rad) parametrise SO(3) through :func:`exp_so3`; :func:`log_so3` returns
-  the one with ``|phi| <= π``.
-* SI units: m, s, kg, N, N·m, rad.
+The rigid part of the paper's eq. (10), ``m a_G = F``, ``I_G dΩ/dt + Ω × I_G Ω = M_G``, with the
+body-frame angular velocity Ω (rad/s) and the body-frame inertia about the centre of mass I_G
+(kg m²). Pure numpy: nothing here knows about meshes or dolfinx. The SO(3) maps and the frame
+conventions are in :mod:`shoulder_fem.engine.so3`.
 """
 
 from __future__ import annotations
@@ -27,283 +14,28 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from shoulder_fem.engine.so3 import (
+    EPS,
+    I3,
+    FloatArray,
+    as_matrix3,
+    as_vector3,
+    exp_so3_unchecked,
+    hat_unchecked,
+    is_rotation,
+    norm3,
+    project_to_so3,
+    right_jacobian_unchecked,
+    rotation_about,
+)
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 LoadFunction = Callable[[float, "RigidState"], ArrayLike | None]
 
-_EPS = float(np.finfo(float).eps)
-# Below this angle (rad) the trigonometric coefficients are evaluated by truncated Taylor series;
-# the first neglected term is O(θ⁶) ≲ 1e-24, far below round-off.
-_SMALL_ANGLE = 1.0e-4
-_I3 = np.eye(3)
-_I3.flags.writeable = False
-
-__all__ = [
-    "NewtonEuler",
-    "RigidState",
-    "SpinUp",
-    "exp_so3",
-    "hat",
-    "inverse_right_jacobian",
-    "is_rotation",
-    "log_so3",
-    "project_to_so3",
-    "right_jacobian",
-    "rotation_about",
-    "vee",
-]
-
-
-# --------------------------------------------------------------------------------------------
-# SO(3) utilities
-# --------------------------------------------------------------------------------------------
-
-
-def _vector3(v: ArrayLike, name: str) -> FloatArray:
-    """Return ``v`` as a finite float array of shape (3,), or raise ValueError naming it."""
-    a = np.asarray(v, dtype=float)
-    if a.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite, got {a}")
-    return a
-
-
-def _matrix3(m: ArrayLike, name: str) -> FloatArray:
-    """Return ``m`` as a finite float array of shape (3, 3), or raise ValueError naming it."""
-    a = np.asarray(m, dtype=float)
-    if a.shape != (3, 3):
-        raise ValueError(f"{name} must have shape (3, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite")
-    return a
-
-
-def hat(v: ArrayLike) -> FloatArray:
-    """Skew-symmetric matrix of a 3-vector: ``hat(v) @ w == np.cross(v, w)``.
-
-    Args:
-        v: Vector of shape (3,), any unit (the matrix carries the same unit).
-
-    Returns:
-        The (3, 3) skew-symmetric matrix ``[v]×``.
-    """
-    return _hat(_vector3(v, "v"))
-
-
-def hats(v: ArrayLike) -> FloatArray:
-    """:func:`hat` of every vector of ``v`` (..., 3): the matrices (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    h = np.zeros(v.shape + (3,))
-    h[..., 0, 1], h[..., 0, 2] = -v[..., 2], v[..., 1]
-    h[..., 1, 0], h[..., 1, 2] = v[..., 2], -v[..., 0]
-    h[..., 2, 0], h[..., 2, 1] = -v[..., 1], v[..., 0]
-    return h
-
-
-def _hat(v: FloatArray) -> FloatArray:
-    """:func:`hat` without input checks, for trusted (3,) float arrays in inner loops."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def _norm(v: FloatArray) -> float:
-    """Euclidean norm of a (3,) float array (cheaper than np.linalg.norm for tiny arrays)."""
-    return math.sqrt(float(v @ v))
-
-
-def vee(W: ArrayLike) -> FloatArray:
-    """Inverse of :func:`hat`: the axial vector of the skew-symmetric part of ``W``.
-
-    Args:
-        W: (3, 3) matrix. Only its skew-symmetric part ``(W - Wᵀ)/2`` is used, so
-            ``vee(hat(v)) == v`` exactly and a slightly non-skew input is projected.
-
-    Returns:
-        Vector of shape (3,) with ``hat(vee(W)) == (W - Wᵀ)/2``.
-    """
-    a = _matrix3(W, "W")
-    return 0.5 * np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]])
-
-
-def _exp_coefficients(theta: float) -> tuple[float, float]:
-    """Return ``A = sin θ/θ`` and ``B = (1 - cos θ)/θ²``, accurate for every θ >= 0."""
-    if theta < _SMALL_ANGLE:
-        t2 = theta * theta
-        return 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0), 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0)
-    half_sin = math.sin(0.5 * theta)
-    # 1 - cos θ = 2 sin²(θ/2) avoids the cancellation of 1 - cos θ at moderate angles.
-    return math.sin(theta) / theta, 2.0 * half_sin * half_sin / (theta * theta)
-
-
-def exp_so3(phi: ArrayLike) -> FloatArray:
-    """Rotation matrix of a rotation vector (Rodrigues' formula).
-
-    ``exp(hat(phi)) = I + (sin θ/θ) K + ((1 - cos θ)/θ²) K²`` with ``K = hat(phi)``, θ = |phi|. The
-    coefficients use Taylor series below 1e-4 rad and ``1 - cos θ = 2 sin²(θ/2)`` above, so the
-    result is orthogonal to round-off for tiny, moderate and near-π (or larger) angles.
-
-    Args:
-        phi: Rotation vector (rad), shape (3,): axis ``phi/|phi|``, angle ``|phi|``.
-
-    Returns:
-        The (3, 3) rotation matrix.
-    """
-    return _exp(_vector3(phi, "phi"))
-
-
-def _exp(phi: FloatArray) -> FloatArray:
-    """:func:`exp_so3` without input checks, for trusted (3,) float arrays in inner loops."""
-    a, b = _exp_coefficients(_norm(phi))
-    K = _hat(phi)
-    return _I3 + a * K + b * (K @ K)
-
-
-def log_so3(R: ArrayLike) -> FloatArray:
-    """Rotation vector of a rotation matrix, the inverse of :func:`exp_so3` on ``|phi| <= π``.
-
-    The angle is ``atan2(sin θ, cos θ)`` with ``sin θ = |vee(R - Rᵀ)|/2`` and
-    ``cos θ = (tr R - 1)/2``, which is accurate to round-off at every angle (``acos`` of the trace
-    alone loses half the digits near 0 and π). For θ <= π/2 the axis comes from the
-    skew-symmetric part; for θ > π/2, where ``sin θ`` goes to zero, it comes from the symmetric
-    part ``(R + Rᵀ)/2 - cos θ I = (1 - cos θ) n nᵀ``, with the sign taken from the skew part.
-
-    Args:
-        R: (3, 3) rotation matrix (not checked; use :func:`project_to_so3` first if in doubt).
-
-    Returns:
-        Rotation vector ``phi`` (rad), shape (3,), with ``|phi| <= π`` and ``exp_so3(phi) ≈ R``.
-        At exactly θ = π both ``±phi`` are valid; one of them is returned.
-    """
-    R = _matrix3(R, "R")
-    w = vee(R)  # = sin θ · n
-    s = math.sqrt(float(w @ w))
-    c = 0.5 * (float(np.trace(R)) - 1.0)
-    theta = math.atan2(s, c)
-    if c >= 0.0:
-        if theta < _SMALL_ANGLE:
-            # θ/sin θ = 1 + θ²/6 + 7θ⁴/360 + ...
-            t2 = theta * theta
-            return (1.0 + t2 / 6.0 * (1.0 + 7.0 * t2 / 60.0)) * w
-        return (theta / s) * w
-    B = 0.5 * (R + R.T) - c * np.eye(3)  # (1 - c) n nᵀ, 1 - c >= 1 here
-    i = int(np.argmax(np.diag(B)))
-    n = B[:, i] / math.sqrt(max(B[i, i], 0.0) * (1.0 - c))
-    n /= np.linalg.norm(n)
-    if float(n @ w) < 0.0:
-        n = -n
-    return theta * n
-
-
-def right_jacobian(phi: ArrayLike) -> FloatArray:
-    """Right Jacobian of SO(3): ``exp(hat(phi + δ)) ≈ exp(hat(phi)) exp(hat(J_r(phi) δ))``.
-
-    ``J_r = I - ((1 - cos θ)/θ²) K + ((θ - sin θ)/θ³) K²`` with ``K = hat(phi)``. The left
-    Jacobian is ``J_r(-phi)``. It also maps the rate of the rotation vector to the body angular
-    velocity: ``omega = J_r(phi) dphi/dt``.
-
-    Args:
-        phi: Rotation vector (rad), shape (3,).
-
-    Returns:
-        The (3, 3) dimensionless Jacobian.
-    """
-    return _right_jacobian(_vector3(phi, "phi"))
-
-
-def _right_jacobian(phi: FloatArray) -> FloatArray:
-    """:func:`right_jacobian` without input checks, for trusted (3,) float arrays."""
-    theta = _norm(phi)
-    _, b = _exp_coefficients(theta)
-    if theta < _SMALL_ANGLE:
-        t2 = theta * theta
-        c = 1.0 / 6.0 - t2 / 120.0 * (1.0 - t2 / 42.0)
-    else:
-        c = (theta - math.sin(theta)) / theta**3
-    K = _hat(phi)
-    return _I3 - b * K + c * (K @ K)
-
-
-def inverse_right_jacobian(phi: ArrayLike) -> FloatArray:
-    """Inverse of :func:`right_jacobian`: ``dphi/dt = J_r(phi)⁻¹ omega``.
-
-    ``J_r⁻¹ = I + K/2 + (1/θ² - (1 + cos θ)/(2 θ sin θ)) K²``; singular at θ = 2π, fine for the
-    ``|phi| <= π`` range of :func:`log_so3`.
-
-    Args:
-        phi: Rotation vector (rad), shape (3,), ``|phi| < 2π``.
-
-    Returns:
-        The (3, 3) dimensionless inverse Jacobian.
-    """
-    phi = _vector3(phi, "phi")
-    theta = math.sqrt(float(phi @ phi))
-    if theta >= 2.0 * math.pi - 1e-8:
-        raise ValueError(f"phi: inverse right Jacobian is singular at |phi| = 2π (|phi|={theta})")
-    if theta < _SMALL_ANGLE:
-        t2 = theta * theta
-        d = 1.0 / 12.0 + t2 / 720.0 * (1.0 + t2 / 42.0)
-    else:
-        d = 1.0 / theta**2 - (1.0 + math.cos(theta)) / (2.0 * theta * math.sin(theta))
-    K = hat(phi)
-    return np.eye(3) + 0.5 * K + d * (K @ K)
-
-
-def rotation_about(axis: ArrayLike, angle: float) -> FloatArray:
-    """Rotation by ``angle`` (rad, right-hand rule) about ``axis`` (any nonzero length).
-
-    Args:
-        axis: Rotation axis, shape (3,), normalised here.
-        angle: Rotation angle (rad).
-
-    Returns:
-        The (3, 3) rotation matrix ``exp(hat(angle · axis/|axis|))``.
-    """
-    n = _vector3(axis, "axis")
-    norm = float(np.linalg.norm(n))
-    if norm == 0.0:
-        raise ValueError("axis must be nonzero")
-    if not math.isfinite(angle):
-        raise ValueError(f"angle must be finite, got {angle}")
-    return exp_so3((float(angle) / norm) * n)
-
-
-def is_rotation(R: ArrayLike, tol: float = 1e-10) -> bool:
-    """Whether ``R`` is a rotation: ``max|RᵀR - I| <= tol`` and ``|det R - 1| <= tol``.
-
-    Args:
-        R: Candidate matrix; anything not (3, 3) and finite gives False.
-        tol: Absolute tolerance (dimensionless).
-
-    Returns:
-        True if ``R`` is in SO(3) to ``tol``.
-    """
-    a = np.asarray(R, dtype=float)
-    if a.shape != (3, 3) or not np.all(np.isfinite(a)):
-        return False
-    orth = float(np.max(np.abs(a.T @ a - np.eye(3))))
-    return orth <= tol and abs(float(np.linalg.det(a)) - 1.0) <= tol
-
-
-def project_to_so3(R: ArrayLike) -> FloatArray:
-    """Closest rotation to ``R`` in the Frobenius norm (the polar factor, through an SVD).
-
-    ``R = U S Vᵀ`` gives ``U diag(1, 1, det(U Vᵀ)) Vᵀ``; for ``det R > 0`` this is the orthogonal
-    factor of the polar decomposition. Used to remove round-off drift from a rotation.
-
-    Args:
-        R: (3, 3) matrix, typically a rotation polluted by round-off.
-
-    Returns:
-        The (3, 3) rotation matrix nearest to ``R``.
-    """
-    a = _matrix3(R, "R")
-    U, _, Vt = np.linalg.svd(a)
-    d = 1.0 if np.linalg.det(U @ Vt) > 0.0 else -1.0
-    return (U * np.array([1.0, 1.0, d])) @ Vt
+__all__ = ["LoadFunction", "NewtonEuler", "RigidState", "SpinUp"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -339,10 +71,10 @@ class RigidState:
         self.t = float(self.t)
         if not math.isfinite(self.t):
             raise ValueError(f"t must be finite, got {self.t}")
-        self.x_g = _vector3(self.x_g, "x_g").copy()
-        self.v_g = _vector3(self.v_g, "v_g").copy()
-        self.R = _matrix3(self.R, "R").copy()
-        self.omega = _vector3(self.omega, "omega").copy()
+        self.x_g = as_vector3(self.x_g, "x_g").copy()
+        self.v_g = as_vector3(self.v_g, "v_g").copy()
+        self.R = as_matrix3(self.R, "R").copy()
+        self.omega = as_vector3(self.omega, "omega").copy()
         if not is_rotation(self.R, tol=1e-8):
             raise ValueError("R must be a rotation matrix (orthogonal, det 1) to 1e-8")
 
@@ -371,11 +103,11 @@ class RigidState:
 
     def point_position(self, r_body: ArrayLike) -> FloatArray:
         """Inertial position (m) of the body point at body-frame offset ``r_body`` (m) from G."""
-        return self.x_g + self.R @ _vector3(r_body, "r_body")
+        return self.x_g + self.R @ as_vector3(r_body, "r_body")
 
     def point_velocity(self, r_body: ArrayLike) -> FloatArray:
         """Inertial velocity (m/s) of the body point at body-frame offset ``r_body`` (m) from G."""
-        return self.v_g + self.R @ np.cross(self.omega, _vector3(r_body, "r_body"))
+        return self.v_g + self.R @ np.cross(self.omega, as_vector3(r_body, "r_body"))
 
     def copy(self) -> RigidState:
         """Independent copy (arrays copied)."""
@@ -508,7 +240,7 @@ class NewtonEuler:
         value = fun(t, state)
         if value is None:
             return np.zeros(3)
-        return _vector3(value, f"{name}(t={t:g})")
+        return as_vector3(value, f"{name}(t={t:g})")
 
     def step(
         self,
@@ -538,7 +270,7 @@ class NewtonEuler:
         if not (math.isfinite(h) and h > 0.0):
             raise ValueError(f"dt must be finite and positive (s), got {dt}")
         inertia, inertia_inv, m = self.inertia_body, self.inertia_inverse, self.mass
-        t0, x0, v0, R0, w0 = state.t, state.x_g, state.v_g, state.R, state.omega
+        t0, v0, w0 = state.t, state.v_g, state.omega
         pi0 = inertia @ w0
         has_loads = force is not None or moment is not None
 
@@ -552,34 +284,21 @@ class NewtonEuler:
         it = 0
         for it in range(1, self.max_iterations + 1):
             if has_loads:
-                x1 = x0 + 0.5 * h * (v0 + v1)
-                mid = RigidState._trusted(
-                    t0 + 0.5 * h,
-                    0.5 * (x0 + x1),
-                    0.5 * (v0 + v1),
-                    R0 @ _exp(0.5 * theta),
-                    theta / h,
-                )
-                f_bar = self._load(force, mid.t, mid, "force")
-                m_body = R0.T @ self._load(moment, mid.t, mid, "moment")
+                f_bar, m_body = self._mid_step_loads(state, h, v1, theta, force, moment)
             v1_new = v0 + (h / m) * f_bar
-            dv = _norm(v1_new - v1)
+            dv = norm3(v1_new - v1)
             v1 = v1_new
 
             # Rotation: Newton step on r(θ) = I_G (2θ/h - Ω_n) - exp(-hat θ) a.
             a = pi0 + h * m_body
-            E = _exp(-theta)
-            residual = inertia @ ((2.0 / h) * theta - w0) - E @ a
-            jac = (2.0 / h) * inertia - E @ _hat(a) @ _right_jacobian(-theta)
-            dtheta = -np.linalg.solve(jac, residual)
-            theta = theta + dtheta
+            theta, residual, dtheta = self._rotation_newton_step(theta, w0, a, h)
 
-            res_norm = _norm(residual)
-            dtheta_norm = _norm(dtheta)
-            res_scale = _norm(a) + (2.0 / h) * _norm(inertia @ theta)
-            small_step = dtheta_norm <= self.rtol * _norm(theta)
-            at_round_off = res_norm <= 8.0 * _EPS * res_scale
-            v_ok = dv <= self.rtol * _norm(v1)
+            res_norm = norm3(residual)
+            dtheta_norm = norm3(dtheta)
+            res_scale = norm3(a) + (2.0 / h) * norm3(inertia @ theta)
+            small_step = dtheta_norm <= self.rtol * norm3(theta)
+            at_round_off = res_norm <= 8.0 * EPS * res_scale
+            v_ok = dv <= self.rtol * norm3(v1)
             # With loads, iterate at least twice so the loads are seen at an updated iterate.
             if (small_step or at_round_off) and v_ok and (it > 1 or not has_loads):
                 converged = True
@@ -591,12 +310,63 @@ class NewtonEuler:
                 f"{self.max_iterations} iterations (rotation residual {res_norm:.3e} kg m²/s,"
                 f" |dθ|={dtheta_norm:.3e} rad, |dv|={dv:.3e} m/s)"
             )
+        return self._end_state(state, h, theta, v1, pi0 + h * m_body)
 
-        pi1 = _exp(-theta) @ (pi0 + h * m_body)
-        R1 = R0 @ _exp(theta)
-        if float(np.max(np.abs(R1.T @ R1 - _I3))) > 1e-13:
+    def _mid_step_loads(
+        self,
+        state: RigidState,
+        h: float,
+        v1: FloatArray,
+        theta: FloatArray,
+        force: LoadFunction | None,
+        moment: LoadFunction | None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """The loads at the mid-step state of the iterate (v_{n+1}, θ) from ``state`` at t_n.
+
+        Returns:
+            F̄ (N, inertial frame) and R_nᵀ M̄ (N·m, body components at t_n).
+        """
+        t0, x0, v0, R0 = state.t, state.x_g, state.v_g, state.R
+        x1 = x0 + 0.5 * h * (v0 + v1)
+        mid = RigidState._trusted(
+            t0 + 0.5 * h,
+            0.5 * (x0 + x1),
+            0.5 * (v0 + v1),
+            R0 @ exp_so3_unchecked(0.5 * theta),
+            theta / h,
+        )
+        f_bar = self._load(force, mid.t, mid, "force")
+        m_body = R0.T @ self._load(moment, mid.t, mid, "moment")
+        return f_bar, m_body
+
+    def _rotation_newton_step(
+        self, theta: FloatArray, w0: FloatArray, a: FloatArray, h: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """One Newton step on r(θ) = I_G (2θ/h - Ω_n) - exp(-hat θ) a (kg m²/s).
+
+        Returns:
+            The updated θ (rad), the residual r at the old θ, and the increment dθ (rad).
+        """
+        inertia = self.inertia_body
+        E = exp_so3_unchecked(-theta)
+        residual = inertia @ ((2.0 / h) * theta - w0) - E @ a
+        jac = (2.0 / h) * inertia - E @ hat_unchecked(a) @ right_jacobian_unchecked(-theta)
+        dtheta = -np.linalg.solve(jac, residual)
+        theta = theta + dtheta
+        return theta, residual, dtheta
+
+    def _end_state(
+        self, state: RigidState, h: float, theta: FloatArray, v1: FloatArray, a: FloatArray
+    ) -> RigidState:
+        """The state at t_n + h from the converged θ, v_{n+1} and a = I_G Ω_n + h R_nᵀ M̄."""
+        t0, x0, v0, R0 = state.t, state.x_g, state.v_g, state.R
+        pi1 = exp_so3_unchecked(-theta) @ a
+        R1 = R0 @ exp_so3_unchecked(theta)
+        if float(np.max(np.abs(R1.T @ R1 - I3))) > 1e-13:
             R1 = project_to_so3(R1)
-        return RigidState._trusted(t0 + h, x0 + 0.5 * h * (v0 + v1), v1, R1, inertia_inv @ pi1)
+        return RigidState._trusted(
+            t0 + h, x0 + 0.5 * h * (v0 + v1), v1, R1, self.inertia_inverse @ pi1
+        )
 
     def integrate(
         self,
@@ -671,7 +441,7 @@ class SpinUp:
             raise ValueError(f"omega_s must be finite (rad/s), got {omega_s}")
         if not (math.isfinite(ramp_time) and ramp_time > 0.0):
             raise ValueError(f"ramp_time must be finite and positive (s), got {ramp_time}")
-        n = _vector3(axis, "axis")
+        n = as_vector3(axis, "axis")
         norm = float(np.linalg.norm(n))
         if norm == 0.0:
             raise ValueError("axis must be nonzero")

@@ -38,8 +38,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.engine.fem import constant, owned_flags
-from shoulder_fem.engine.rigid import rotation_about
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.so3 import rotation_about
 from shoulder_fem.engine.solver import NonlinearSolver, StepperStats, march
 from shoulder_fem.families.base import Family, RunContext
 from shoulder_fem.forms import materials

@@ -66,7 +66,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy.spatial import cKDTree
 
-from shoulder_fem.engine.rigid import hats
+from shoulder_fem.engine.so3 import hats
 
 logger = logging.getLogger(__name__)
 

@@ -86,7 +86,8 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.fem import owned_flags
 from shoulder_fem.engine.mass import MassProperties
-from shoulder_fem.engine.rigid import RigidState, exp_so3, hat, hats, log_so3, right_jacobian
+from shoulder_fem.engine.rigid import RigidState
+from shoulder_fem.engine.so3 import exp_so3, hat, hats, log_so3, right_jacobian
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     SolveStats,

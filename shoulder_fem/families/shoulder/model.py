@@ -72,8 +72,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
-from shoulder_fem.engine.rigid import hat
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.so3 import hat
 from shoulder_fem.engine.solver import ConvergenceError, StepperStats
 from shoulder_fem.engine.springs import GROUND, Spring, spring_response
 from shoulder_fem.families.base import RunContext

@@ -1,33 +1,11 @@
 """The ``tumbling-body`` family: a free flexible body spinning near its intermediate axis.
 
-A box of uniform density with no support and no load is set spinning about its intermediate
-principal axis (y) with a small component about the minor axis (x). The rotation is unstable
-(the "tennis-racket" or Dzhanibekov effect): the body flips periodically, its body-frame angular
-momentum component along y swinging between +|L| and −|L|. Both methods run this model:
-
-* ``coupled``: :class:`shoulder_fem.floating.FloatingBody`, eq. (14), finite strain, frame and
-  straining solved together (Simo–Tarnow energy–momentum midpoint rule: energy, linear and
-  angular momentum conserved exactly);
-* ``decoupled``: the paper's steps 1–3. Step 1 is eq. (10) integrated by
-  :class:`shoulder_fem.rigid.NewtonEuler` with the mass and I_G of the mesh; step 3 is eq. (13),
-  linear elastic, in that recorded frame, with the rigid-frame inertia (Euler and centrifugal;
-  a_G = 0 for a free body), the Coriolis term and the relative inertia, integrated by Newmark's
-  average-acceleration rule. The free linear problem is made well posed by the same six
-  mean-axes frame conditions as the coupled solver (∫ρ ũ = 0, ∫ρ Y × ũ = 0, Lagrange
-  multipliers): they pin the rigid modes of ũ without adding stiffness; their multipliers are
-  the parts of the Coriolis and relative-inertia loads the rigid step ignored.
-
-With ``relaxed_start`` (the default) both methods start from the linear quasi-static straining
-of the initial spin (:func:`quasi_static_straining`) instead of ũ = 0: a sudden centrifugal load
-on an unstrained body would ring its elastic modes, whose periods (~1 ms at E = 15 MPa) the
-time step does not resolve.
-
-Both report, from the same functionals, the kinetic energy, |L|, the linear momentum, the
-rigid-equivalent body-frame angular velocity Ω = I_G⁻¹ Rᵀ L_G, the flip indicator
-(Rᵀ L_G)·e_y/|L_G| and the largest von Mises stress, and the probes ``flip_period`` (measured:
-twice the mean interval between zero crossings of the indicator), ``flip_period_rigid`` (the
-same measure on a rigid body integrated by NewtonEuler with a step ten times smaller),
-``energy_drift`` and ``angular_momentum_drift`` (largest relative deviations from t = 0).
+A box of uniform density with no support and no load spins about its intermediate principal axis
+(y) with a small component about the minor axis (x): the rotation is unstable (the
+"tennis-racket" or Dzhanibekov effect) and the body flips periodically, its body-frame angular
+momentum component along y swinging between +|L| and −|L|. :func:`run_coupled` runs the
+floating-frame solver of eq. (14), :func:`run_decoupled` the paper's steps 1–3; both report the
+same measures (:class:`Reporter`).
 """
 
 from __future__ import annotations
@@ -37,19 +15,25 @@ import math
 from dataclasses import dataclass
 
 import dolfinx
+import dolfinx.fem.petsc as fem_petsc
 import numpy as np
 import ufl
 from mpi4py import MPI
-from petsc4py import PETSc
 
+from shoulder_fem.engine.bordered import BorderedSolver, assemble_owned
 from shoulder_fem.engine.fem import constant
-from shoulder_fem.engine.floating import BorderedSolver, FloatingBody, MotionMeasures
-from shoulder_fem.engine.mass import mass_properties
+from shoulder_fem.engine.floating import FloatingBody
+from shoulder_fem.engine.floating_forms import mean_axes_forms
+from shoulder_fem.engine.mass import MassProperties, mass_properties
+from shoulder_fem.engine.motion_measures import MotionMeasures
 from shoulder_fem.engine.rigid import NewtonEuler, RigidState
-from shoulder_fem.engine.solver import SolveStats, StepperStats, march, time_grid
+from shoulder_fem.engine.solver import ConvergenceError, SolveStats, StepperStats, march, time_grid
 from shoulder_fem.families.base import Family, RunContext
+from shoulder_fem.families.driven_body.decoupled import INDICATOR_WARNING, DecouplingIndicator
+from shoulder_fem.families.driven_body.model import NewmarkState
 from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.io.results import FieldWriter
 from shoulder_fem.meshes.box import build_box
 from shoulder_fem.scene import Scene, SceneError
 
@@ -160,7 +144,15 @@ def rigid_flip_period(
 
 
 class Reporter:
-    """Records the series of both methods and the probes at the end (collective)."""
+    """Records the series of both methods and the probes at the end (collective).
+
+    The series, from the same functionals for both methods: the kinetic energy, |L|, the linear
+    momentum, the rigid-equivalent body-frame angular velocity Ω = I_G⁻¹ Rᵀ L_G, the flip
+    indicator (Rᵀ L_G)·e_y/|L_G| and the largest von Mises stress. The probes: ``flip_period``
+    (twice the mean interval between zero crossings of the indicator), ``flip_period_rigid``
+    (the same measure on a rigid body integrated by NewtonEuler with a step ten times smaller),
+    ``energy_drift`` and ``angular_momentum_drift`` (largest relative deviations from t = 0).
+    """
 
     def __init__(self, model: TumblingBody, recorder, inertia: np.ndarray, mass: float):
         self.model, self.recorder = model, recorder
@@ -236,6 +228,10 @@ class Reporter:
 def quasi_static_straining(model: TumblingBody, omega: np.ndarray) -> np.ndarray:
     """Linear quasi-static straining ũ (m) of the body spinning at Ω (body frame, rad/s).
 
+    With ``relaxed_start`` (the default) both methods start from this straining instead of
+    ũ = 0: a sudden centrifugal load on an unstrained body would ring its elastic modes, whose
+    periods (~1 ms at E = 15 MPa) the time step does not resolve.
+
     Eq. (13) without the relative-inertia and Coriolis terms, with Ω̇ from Euler's torque-free
     equation, ∫σ(ε(ũ)):ε(w) + ∫ρ(Ω̇ × Y + Ω × (Ω × Y))·w = 0, and the mean-axes conditions.
     The load is self-equilibrated, so the free problem has a solution; the stiffness is
@@ -246,8 +242,6 @@ def quasi_static_straining(model: TumblingBody, omega: np.ndarray) -> np.ndarray
     Returns:
         ũ as the local + ghost entries of the blocked array of ``model.V``.
     """
-    import dolfinx.fem.petsc as fem_petsc
-
     mesh, V, rho = model.mesh, model.V, model.density
     qd = 2 * model.degree
     dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": qd})
@@ -267,14 +261,9 @@ def quasi_static_straining(model: TumblingBody, omega: np.ndarray) -> np.ndarray
     A.assemble()
 
     def vector(form) -> np.ndarray:
-        vec = fem_petsc.assemble_vector(dolfinx.fem.form(form, form_compiler_params=fcp))
-        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        values = vec.array.copy()
-        vec.destroy()
-        return values
+        return assemble_owned(dolfinx.fem.form(form, form_compiler_params=fcp))
 
-    C = [vector(rho * w[k] * dx) for k in range(3)]
-    C += [vector(rho * ufl.cross(Y, w)[k] * dx) for k in range(3)]
+    C = [vector(f) for f in mean_axes_forms(rho, Y, w, dx)]
     solver = BorderedSolver(mesh.comm, A, "tumbling_static")
     y, _ = solver.solve(vector(load), C, C, np.zeros((6, 6)), np.zeros(6))
     solver.destroy()
@@ -305,17 +294,15 @@ def _bordered_counts(newton: int, linear: BorderedSolver) -> SolveStats:
 
 
 def run_coupled(model: TumblingBody, run: RunContext) -> None:
-    """Run the coupled floating-frame solver; results go to ``recorder`` and ``fields_dir``.
+    """Run the coupled floating-frame solver; results go to ``run.recorder`` and ``run.fields``.
 
-    ``options`` may hold ``rtol``, ``atol`` (N) and ``max_iterations`` of the Newton solve.
+    :class:`~shoulder_fem.engine.floating.FloatingBody`, eq. (14): finite strain, frame and
+    straining solved together (Simo–Tarnow energy–momentum midpoint rule: energy, linear and
+    angular momentum conserved exactly). ``run.options`` may hold ``rtol``, ``atol`` (N) and
+    ``max_iterations`` of the Newton solve.
     """
     recorder = run.recorder
-    monitor = run.monitor
-    fields_dir = run.fields
-    options = run.options
-    from shoulder_fem.io.results import FieldWriter
-
-    opts = dict(options or {})
+    opts = dict(run.options or {})
     material = materials.SaintVenantKirchhoff(model.youngs_modulus, model.poisson_ratio)
     body = FloatingBody(
         model.mesh,
@@ -336,7 +323,7 @@ def run_coupled(model: TumblingBody, run: RunContext) -> None:
     reporter = Reporter(model, recorder, props.inertia, props.mass)
     inertial_u = dolfinx.fem.Function(body.V, name="displacement")
     X = body.V.tabulate_dof_coordinates().ravel()
-    writer = FieldWriter(model.mesh.comm, model.mesh, fields_dir / "tumbling.xdmf")
+    writer = FieldWriter(model.mesh.comm, model.mesh, run.fields / "tumbling.xdmf")
     field_times = set(np.round(model.field_times, 12))
     histories: list[list[float]] = []
 
@@ -348,7 +335,7 @@ def run_coupled(model: TumblingBody, run: RunContext) -> None:
             histories.append(s.history)
         inertial_u.x.array[:] = body.x_n.x.array - X
         _write_fields(writer, [inertial_u, body.u, body.von_mises], t, field_times)
-        monitor.sample()
+        run.monitor.sample()
 
     stats = StepperStats()
     record(model.times[0])
@@ -372,175 +359,229 @@ def run_coupled(model: TumblingBody, run: RunContext) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def run_decoupled(model: TumblingBody, run: RunContext) -> None:
-    """Run the decoupled method (steps 1–3 of the paper); results go to ``recorder``."""
-    recorder = run.recorder
-    monitor = run.monitor
-    fields_dir = run.fields
-    import dolfinx.fem.petsc as fem_petsc
+class DecoupledStraining:
+    """Step 3 of the decoupled method: eq. (13), linear, in the rigid frame of step 1.
 
-    from shoulder_fem.families.driven_body.model import NewmarkState
-    from shoulder_fem.io.results import FieldWriter
+    The rigid-frame inertia (Euler and centrifugal; a_G = 0 for a free body), the Coriolis term
+    and the relative inertia, integrated by Newmark's average-acceleration rule. The free linear
+    problem is made well posed by the same six mean-axes frame conditions as the coupled solver
+    (∫ρ ũ = 0, ∫ρ Y × ũ = 0, Lagrange multipliers): they pin the rigid modes of ũ without adding
+    stiffness; their multipliers are the parts of the Coriolis and relative-inertia loads the
+    rigid step ignored. Collective.
 
-    mesh, V = model.mesh, model.V
-    comm = mesh.comm
-    rho = model.density
-    qd = 2 * model.degree
-    dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": qd})
-    fcp = {"quadrature_degree": qd}
-    props = mass_properties(mesh, rho, dx)
-    recorder.extra("mass_kg", props.mass)
-    recorder.extra("inertia_kg_m2", props.inertia)
+    Args:
+        model: the tumbling body.
+        props: its mass properties (kg, m, kg m²).
+        dx: the cell measure (quadrature degree ``qd``).
+        qd: the quadrature degree of the forms.
+    """
 
-    # Step 1: eq. (10), the rigid motion.
-    rigid = NewtonEuler(props.mass, props.inertia)
-    rstate = RigidState(x_g=props.centre, omega=model.omega0)
+    def __init__(self, model: TumblingBody, props: MassProperties, dx: ufl.Measure, qd: int):
+        mesh, V, rho = model.mesh, model.V, model.density
+        fcp = {"quadrature_degree": qd}
+        self.inertia = props.inertia
+        self.omega, self.domega, a_g = (constant(mesh, np.zeros(3)) for _ in range(3))
+        self.dt = constant(mesh, 1.0)
+        X = ufl.SpatialCoordinate(mesh)
+        #: Y = X − X_G as a UFL vector (m).
+        self.Y = X - ufl.as_vector(props.centre.tolist())
+        w = ufl.TestFunction(V)
+        self.state = NewmarkState(V, "strain_displacement")
+        self.u = u = self.state.u
+        self.material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
+        residual = (
+            vp.internal_power_linear(self.material, u, w, dx)
+            + vp.rigid_frame_inertia(rho, a_g, self.omega, self.domega, self.Y, w, dx)
+            + vp.relative_inertia(rho, self.state.acceleration(self.dt), w, dx)
+            + vp.coriolis_inertia(rho, self.omega, self.state.velocity(self.dt), w, dx)
+        )
+        self.r_form = dolfinx.fem.form(residual, form_compiler_params=fcp)
+        self.a_form = dolfinx.fem.form(
+            ufl.derivative(residual, u, ufl.TrialFunction(V)), form_compiler_params=fcp
+        )
+        self.A = fem_petsc.create_matrix(self.a_form)
+        fem_petsc.assemble_matrix(self.A, self.a_form)
+        self.A.assemble()
+        self.linear = BorderedSolver(mesh.comm, self.A, "tumbling_decoupled")
+        self.r_vec = fem_petsc.create_vector(self.r_form)
+        self.n_owned = V.dofmap.index_map.size_local * 3
+        self.C = [assemble_owned(dolfinx.fem.form(f)) for f in mean_axes_forms(rho, self.Y, w, dx)]
 
-    # Step 3: eq. (13), linear, in the rigid frame, Newmark average acceleration.
-
-    omega, domega, a_g = (constant(mesh, np.zeros(3)) for _ in range(3))
-    dt = constant(mesh, 1.0)
-    X = ufl.SpatialCoordinate(mesh)
-    Y = X - ufl.as_vector(props.centre.tolist())
-    w = ufl.TestFunction(V)
-    state = NewmarkState(V, "strain_displacement")
-    u = state.u
-    material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
-    residual = (
-        vp.internal_power_linear(material, u, w, dx)
-        + vp.rigid_frame_inertia(rho, a_g, omega, domega, Y, w, dx)
-        + vp.relative_inertia(rho, state.acceleration(dt), w, dx)
-        + vp.coriolis_inertia(rho, omega, state.velocity(dt), w, dx)
-    )
-    r_form = dolfinx.fem.form(residual, form_compiler_params=fcp)
-    a_form = dolfinx.fem.form(
-        ufl.derivative(residual, u, ufl.TrialFunction(V)), form_compiler_params=fcp
-    )
-    A = fem_petsc.create_matrix(a_form)
-    fem_petsc.assemble_matrix(A, a_form)
-    A.assemble()
-    linear = BorderedSolver(comm, A, "tumbling_decoupled")
-    r_vec = fem_petsc.create_vector(r_form)
-    n_owned = V.dofmap.index_map.size_local * 3
-
-    def assemble(form, vec) -> np.ndarray:
-        with vec.localForm() as local:
-            local.set(0.0)
-        fem_petsc.assemble_vector(vec, form)
-        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        return vec.array.copy()
-
-    c_forms = [rho * w[k] * dx for k in range(3)] + [
-        rho * ufl.cross(Y, w)[k] * dx for k in range(3)
-    ]
-    C = [assemble(dolfinx.fem.form(f), fem_petsc.create_vector(r_form)) for f in c_forms]
-    last = {"rigid": rstate, "multipliers": np.zeros(6)}
-
-    def set_frame(s: RigidState) -> None:
+    def set_frame(self, s: RigidState, inertia_inverse: np.ndarray) -> None:
+        """Take Ω (rad/s) from ``s`` and Ω̇ (rad/s²) from Euler's torque-free equation."""
         om = s.omega
-        omega.value[:] = om
-        domega.value[:] = rigid.inertia_inverse @ (-np.cross(om, props.inertia @ om))
+        self.omega.value[:] = om
+        self.domega.value[:] = inertia_inverse @ (-np.cross(om, self.inertia @ om))
 
-    def advance(t0: float, t1: float) -> None:
-        h = t1 - t0
-        dt.value = h
-        try:
-            new = rigid.step(last["rigid"], h)
-        except RuntimeError as err:
-            from shoulder_fem.engine.solver import ConvergenceError
+    def solve(self, h: float) -> np.ndarray:
+        """Advance ũ by one step ``h`` (s) in the current frame; return the six multipliers."""
+        self.dt.value = h
+        self.A.zeroEntries()
+        fem_petsc.assemble_matrix(self.A, self.a_form)
+        self.A.assemble()
+        self.linear.set_operator(self.A)
+        r = assemble_owned(self.r_form, self.r_vec)  # at ũ = ũ_n: linear, one solve is exact
+        du, q = self.linear.solve(r, self.C, self.C, np.zeros((6, 6)), np.zeros(6))
+        self.u.x.array[: self.n_owned] += du
+        self.u.x.scatter_forward()
+        self.state.advance(h)
+        return q
 
-            raise ConvergenceError(
-                f"t = {t1:.6g} s", str(err), rigid.last_iterations, "rigid"
-            ) from err
-        set_frame(new)
-        A.zeroEntries()
-        fem_petsc.assemble_matrix(A, a_form)
-        A.assemble()
-        linear.set_operator(A)
-        r = assemble(r_form, r_vec)  # at ũ = ũ_n: the problem is linear, one solve is exact
-        du, q = linear.solve(r, C, C, np.zeros((6, 6)), np.zeros(6))
-        u.x.array[:n_owned] += du
-        u.x.scatter_forward()
-        state.advance(h)
-        last["rigid"] = new
-        last["multipliers"] = q
+    def destroy(self) -> None:
+        """Free the PETSc objects."""
+        self.linear.destroy()
+        self.A.destroy()
+        self.r_vec.destroy()
 
-    # Outputs: x = x_G + R(Y + ũ), v = v_G + R(Ω × (Y + ũ) + ũ̇).
-    measures = MotionMeasures(V, rho, dx)
-    Yd = V.tabulate_dof_coordinates() - props.centre
-    strain = dolfinx.fem.form(material.strain_energy_density(kinematics.linear_strain(u)) * dx)
-    sigma = material.stress(kinematics.linear_strain(u))
-    dev = sigma - ufl.tr(sigma) / 3 * ufl.Identity(3)
-    Q0 = dolfinx.fem.FunctionSpace(mesh, ("DG", 0))
-    von_mises = dolfinx.fem.Function(Q0, name="von_mises")
-    vm_expr = dolfinx.fem.Expression(
-        ufl.sqrt(1.5 * ufl.inner(dev, dev)), Q0.element.interpolation_points()
+
+class DecoupledOutputs:
+    """The inertial motion of the decoupled run and its measures, fields written on the grid.
+
+    x = x_G + R(Y + ũ), v = v_G + R(Ω × (Y + ũ) + ũ̇) from the rigid state and the straining.
+    """
+
+    def __init__(
+        self, model: TumblingBody, straining: DecoupledStraining, centre: np.ndarray, dx, fields
+    ):
+        mesh, V = model.mesh, model.V
+        self.comm = mesh.comm
+        self.straining, self.centre = straining, centre
+        self.measures = MotionMeasures(V, model.density, dx)
+        self.Yd = V.tabulate_dof_coordinates() - centre
+        material, eps = straining.material, kinematics.linear_strain(straining.u)
+        self.strain = dolfinx.fem.form(material.strain_energy_density(eps) * dx)
+        sigma = material.stress(eps)
+        dev = sigma - ufl.tr(sigma) / 3 * ufl.Identity(3)
+        Q0 = dolfinx.fem.FunctionSpace(mesh, ("DG", 0))
+        self.von_mises = dolfinx.fem.Function(Q0, name="von_mises")
+        self.vm_expr = dolfinx.fem.Expression(
+            ufl.sqrt(1.5 * ufl.inner(dev, dev)), Q0.element.interpolation_points()
+        )
+        self.n_cells = mesh.topology.index_map(3).size_local
+        self.inertial_u = dolfinx.fem.Function(V, name="displacement")
+        self.writer = FieldWriter(self.comm, mesh, fields / "tumbling.xdmf")
+        self.field_times = set(np.round(model.field_times, 12))
+        self._x = None
+
+    def measure(self, s: RigidState) -> tuple[float, float, np.ndarray, np.ndarray, float]:
+        """(kinetic J, strain energy J, P kg m/s, L about the origin kg m²/s, max von Mises Pa)."""
+        u, state = self.straining.u, self.straining.state
+        arm = self.Yd + u.x.array.reshape(-1, 3)
+        x = s.x_g + arm @ s.R.T
+        v = s.v_g + (np.cross(s.omega, arm) + state.v_n.x.array.reshape(-1, 3)) @ s.R.T
+        self.measures.x.x.array[:] = x.ravel()
+        self.measures.v.x.array[:] = v.ravel()
+        self.von_mises.interpolate(self.vm_expr)
+        n = self.n_cells
+        vm = self.comm.allreduce(float(np.max(self.von_mises.x.array[:n])) if n else 0.0, MPI.MAX)
+        kinetic, P, L, extra = self.measures.evaluate(self.strain)
+        self._x = x
+        return kinetic, float(extra[0]), P, L, vm
+
+    def write(self, t: float) -> None:
+        """Write the inertial displacement, ũ and the von Mises stress at a field time ``t`` (s)."""
+        self.inertial_u.x.array[:] = (self._x - self.Yd - self.centre).ravel()
+        fields = [self.inertial_u, self.straining.u, self.von_mises]
+        _write_fields(self.writer, fields, t, self.field_times)
+
+
+def _decoupling_indicator(
+    model: TumblingBody,
+    straining: DecoupledStraining,
+    props: MassProperties,
+    dx: ufl.Measure,
+    rigid: NewtonEuler,
+    start: RigidState,
+) -> DecouplingIndicator:
+    """The decoupling indicator, its reference scales from the whole rigid motion.
+
+    Step 1 runs before step 3 in the paper's algorithm; here it is integrated once more up front.
+    G is free (a_G = 0): no orbit about an origin, hence x_g = 0 for the reference scale.
+    """
+    indicator = DecouplingIndicator(
+        model.mesh, model.V, model.density, straining.Y, dx, props.mass, np.zeros(3), props.inertia
     )
-    n_cells = mesh.topology.index_map(3).size_local
-    inertial_u = dolfinx.fem.Function(V, name="displacement")
-    writer = FieldWriter(comm, mesh, fields_dir / "tumbling.xdmf")
-    field_times = set(np.round(model.field_times, 12))
-    reporter = Reporter(model, recorder, props.inertia, props.mass)
-    # The decoupling indicator's reference scales come from the whole rigid motion (step 1
-    # runs before step 3 in the paper's algorithm; here it is integrated once more up front).
-    from shoulder_fem.families.driven_body.decoupled import INDICATOR_WARNING, DecouplingIndicator
-
-    # G is free (a_G = 0): no orbit about an origin, hence x_g = 0 for the reference scale.
-    indicator = DecouplingIndicator(mesh, V, rho, Y, dx, props.mass, np.zeros(3), props.inertia)
-    trajectory = rigid.integrate(rstate, model.times[1] - model.times[0], len(model.times) - 1)
+    trajectory = rigid.integrate(start, model.times[1] - model.times[0], len(model.times) - 1)
     omegas = np.array([st.omega for st in trajectory])
     indicator.set_motion(
         omegas,
         np.array([rigid.inertia_inverse @ -np.cross(om, props.inertia @ om) for om in omegas]),
     )
+    return indicator
+
+
+def run_decoupled(model: TumblingBody, run: RunContext) -> None:
+    """Run the decoupled method (steps 1–3 of the paper); results go to ``run.recorder``.
+
+    Step 1 is eq. (10) integrated by :class:`~shoulder_fem.engine.rigid.NewtonEuler` with the
+    mass and I_G of the mesh; step 3 is :class:`DecoupledStraining` in that recorded frame.
+    """
+    recorder = run.recorder
+    qd = 2 * model.degree
+    dx = ufl.Measure("dx", domain=model.mesh, metadata={"quadrature_degree": qd})
+    props = mass_properties(model.mesh, model.density, dx)
+    recorder.extra("mass_kg", props.mass)
+    recorder.extra("inertia_kg_m2", props.inertia)
+    # Step 1: eq. (10), the rigid motion; step 3: eq. (13), linear, in the rigid frame.
+    rigid = NewtonEuler(props.mass, props.inertia)
+    rstate = RigidState(x_g=props.centre, omega=model.omega0)
+    straining = DecoupledStraining(model, props, dx, qd)
+    last = {"rigid": rstate, "multipliers": np.zeros(6)}
+
+    def advance(t0: float, t1: float) -> None:
+        h = t1 - t0
+        try:
+            new = rigid.step(last["rigid"], h)
+        except RuntimeError as err:
+            raise ConvergenceError(
+                f"t = {t1:.6g} s", str(err), rigid.last_iterations, "rigid"
+            ) from err
+        straining.set_frame(new, rigid.inertia_inverse)
+        q = straining.solve(h)
+        last["rigid"] = new
+        last["multipliers"] = q
+
+    outputs = DecoupledOutputs(model, straining, props.centre, dx, run.fields)
+    reporter = Reporter(model, recorder, props.inertia, props.mass)
+    indicator = _decoupling_indicator(model, straining, props, dx, rigid, rstate)
 
     def record(t: float) -> None:
         s = last["rigid"]
-        value = indicator.evaluate(state, omega.value.copy(), domega.value.copy())
+        omega, domega = straining.omega.value.copy(), straining.domega.value.copy()
+        value = indicator.evaluate(straining.state, omega, domega)
         recorder.add_series_point("decoupling_indicator", t, value, "s", "1")
         if value > INDICATOR_WARNING and not last.get("warned"):
             last["warned"] = True
             logger.warning(
                 "t = %.4g s: decoupling indicator %.3g > %.3g", t, value, INDICATOR_WARNING
             )
-        arm = Yd + u.x.array.reshape(-1, 3)
-        x = s.x_g + arm @ s.R.T
-        v = s.v_g + (np.cross(s.omega, arm) + state.v_n.x.array.reshape(-1, 3)) @ s.R.T
-        measures.x.x.array[:] = x.ravel()
-        measures.v.x.array[:] = v.ravel()
-        von_mises.interpolate(vm_expr)
-        vm = comm.allreduce(float(np.max(von_mises.x.array[:n_cells])) if n_cells else 0.0, MPI.MAX)
-        kinetic, P, L, extra = measures.evaluate(strain)
-        reporter.record(t, s.R, s.x_g, kinetic, float(extra[0]), P, L, vm)
-        inertial_u.x.array[:] = (x - Yd - props.centre).ravel()
-        _write_fields(writer, [inertial_u, u, von_mises], t, field_times)
-        monitor.sample()
+        reporter.record(t, s.R, s.x_g, *outputs.measure(s))
+        outputs.write(t)
+        run.monitor.sample()
 
     def save():
-        return last["rigid"].copy(), state.save()
+        return last["rigid"].copy(), straining.state.save()
 
     def restore(snap) -> None:
         last["rigid"] = snap[0].copy()
-        state.restore(snap[1])
+        straining.state.restore(snap[1])
 
     if model.relaxed_start:
-        state.u.x.array[:] = quasi_static_straining(model, model.omega0)
-        state.u_n.x.array[:] = state.u.x.array
+        straining.u.x.array[:] = quasi_static_straining(model, model.omega0)
+        straining.state.u_n.x.array[:] = straining.u.x.array
     stats = StepperStats()
-    set_frame(rstate)
+    straining.set_frame(rstate, rigid.inertia_inverse)
     record(model.times[0])
     try:
         march(model.times, advance, save, restore, on_step=record, stats=stats)
     finally:
-        writer.close()
+        outputs.writer.close()
         reporter.finish()
         indicator_series = recorder.series.get("decoupling_indicator", {}).get("y", [0.0])
         recorder.set_probe("max_decoupling_indicator", float(max(indicator_series)), "1")
-        recorder.add_solver_counts(_bordered_counts(stats.steps, linear), stats)
+        recorder.add_solver_counts(_bordered_counts(stats.steps, straining.linear), stats)
         recorder.extra("frame_multipliers_final", last["multipliers"])
-        linear.destroy()
-        A.destroy()
-        r_vec.destroy()
+        straining.destroy()
 
 
 FAMILY = Family(

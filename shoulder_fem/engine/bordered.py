@@ -1,10 +1,11 @@
 """Exact block elimination of a bordered linear system: a sparse FE block and a few dense rows.
 
 The floating-frame solver and the decoupled tumbling body add a handful of dense rows and
-columns (frame directions, mean-axes conditions) to a distributed FE matrix. Rather than put them
-into a sparse matrix (preallocation and ownership of the extra rows in dolfinx 0.5.2), the FE
-block is factorized with MUMPS, one multi-right-hand-side solve gives the eliminated columns, and
-the small Schur complement is solved with numpy on every rank.
+columns (frame directions, mean-axes conditions) to a distributed FE matrix. The FE block is
+factorized with MUMPS, one multi-right-hand-side solve gives the eliminated columns, and the small
+Schur complement is solved with numpy on every rank: exact to round-off, while the FE block keeps
+dolfinx's sparsity and parallel layout and the dense rows never enter a sparse matrix (no
+preallocation or ownership of extra rows to manage in dolfinx 0.5.2).
 """
 
 from __future__ import annotations

@@ -1,27 +1,10 @@
-"""The ``tied-block`` scene family: a neo-Hookean block twisted through a plate tied to its top.
+"""The ``tied-block`` scene family: a neo-Hookean block twisted through a plate on its top.
 
-A slender block (square section a × a, length L along z, base at z = 0 fixed) of nearly
-incompressible neo-Hookean material (small-strain shear modulus μ, bulk modulus κ) carries a
-plate on its top face, loaded by a torque T about the block's axis (or, with
-``rotation_driven``, turned by a prescribed angle). Two models of the plate:
-
-* ``decoupled``: the plate is a rigid body with six DOFs (:mod:`shoulder_fem.rigid_bodies`); the
-  block's top face is tied to it; the torque is a pure moment T e_z on it.
-* ``coupled``: the plate is a thin layer of elements (thickness h), neo-Hookean with ν = 0.3
-  and a Young's modulus ``plate_stiffness_ratio`` times the block's; the torque is a traction
-  on its top face, t = (T/J_p) e_z × (x - c), J_p = a⁴/6 the polar moment of the face about
-  the axis c (x the current position, so the moment stays T e_z as the plate turns).
-
-Both report the same outputs: ``plate_rotation`` (rad, about z: the rotation fitted to the block's
-top-face nodes, exact for a rigid rotation), ``base_reaction_torque`` (N·m, about z, the torque
-the fixed base exerts on the block, −T at equilibrium), ``plate_axial_displacement`` (m, mean
-z-displacement of the top face), and ``plate_rotation_saint_venant`` = T L / (μ β a⁴), β =
-0.1406 (linear Saint-Venant torsion of a square section, free warping).
-
-Element: Q2 hexahedra (27-node), full 3×3×3 Gauss quadrature (degree 4), κ/μ = 200
-(ν ≈ 0.4975). Torsion is isochoric, and with Q2 the twist converges monotonically to within
-about 1 % of Saint-Venant's (the rest is the restrained end warping; see the tests); Q1 would
-lock in bending and is not offered.
+Owns :class:`TiedBlock` (the typed scene parameters and both meshes), the measures both methods
+report (:class:`FaceMeasures`), and the two methods: ``decoupled`` ties the block's top face to
+a rigid plate (six DOFs), ``coupled`` meshes the plate as a stiff deformable layer. The plate is
+loaded by a torque about the block's axis or, with ``rotation_driven``, turned by a prescribed
+angle; Saint-Venant's linear twist is the reference.
 """
 
 from __future__ import annotations
@@ -41,7 +24,7 @@ from shoulder_fem.engine.fem import constant, owned_flags
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.engine.so3 import rotation_about
 from shoulder_fem.engine.solver import NonlinearSolver, StepperStats, march
-from shoulder_fem.families.base import Family, RunContext
+from shoulder_fem.families.base import Family, RunContext, SolverOptions
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.meshes.block import BASE, BLOCK, PLATE, PLATE_TOP, TOP, build_block
@@ -55,7 +38,7 @@ SQUARE_TORSION_BETA = 0.1406
 PLATE_POISSON = 0.3
 
 
-@dataclass
+@dataclass(frozen=True)
 class TiedBlock:
     """Everything both methods need to run a tied-block scene (SI units)."""
 
@@ -395,12 +378,40 @@ def tied_distance_error(system: RigidSystem, body: str) -> float:
 # ---- coupled: stiff deformable plate ------------------------------------------------------
 
 
-def run_coupled(model: TiedBlock, run: RunContext) -> None:
-    """The plate as a stiff deformable layer, everything one finite-strain solve."""
-    recorder = run.recorder
-    monitor = run.monitor
-    fields_dir = run.fields
-    options = run.options
+@dataclass(frozen=True)
+class PlatedBlock:
+    """The coupled method's problem: the block and its stiff plate, one finite-strain solve.
+
+    Attributes:
+        u: the displacement (m) on the plated mesh.
+        solver: Newton on the whole residual.
+        residual_form: the compiled residual (for the base reactions).
+        torque: the torque T (N·m) the top traction applies about the axis.
+        u_top: the prescribed displacement of the plate's top face (rotation-driven scenes).
+        top_dofs: the blocked DOFs of the plate's top face.
+    """
+
+    u: dolfinx.fem.Function
+    solver: NonlinearSolver
+    residual_form: dolfinx.fem.FormMetaClass
+    torque: dolfinx.fem.Constant
+    u_top: dolfinx.fem.Function
+    top_dofs: np.ndarray
+
+    def assembled_residual(self) -> PETSc.Vec:
+        """The FE residual (N) at the current ``u``, without boundary conditions (destroy it)."""
+        vec = fem_petsc.assemble_vector(self.residual_form)
+        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return vec
+
+
+def make_plated_block(model: TiedBlock, options: SolverOptions | None = None) -> PlatedBlock:
+    """The block with its plate as a layer of elements, base fixed, torque traction on top.
+
+    The traction is t = (T/J_p) e_z × (x − c), J_p = a⁴/6 the polar moment of the top face, x
+    the current position, so the moment stays T e_z as the plate turns. Rotation-driven scenes
+    prescribe the top face's displacement instead.
+    """
     mesh = model.plated_mesh
     V = vector_space(mesh, model.degree)
     u = dolfinx.fem.Function(V, name="displacement")
@@ -440,12 +451,23 @@ def run_coupled(model: TiedBlock, run: RunContext) -> None:
         form_compiler_params=q,
     )
     residual_form = dolfinx.fem.form(residual, form_compiler_params=q)
+    return PlatedBlock(u, solver, residual_form, torque, u_top, top_dofs)
+
+
+def run_coupled(model: TiedBlock, run: RunContext) -> None:
+    """The plate as a stiff deformable layer, everything one finite-strain solve."""
+    recorder = run.recorder
+    monitor = run.monitor
+    block = make_plated_block(model, run.options)
+    u, solver = block.u, block.solver
+    V = u.function_space
     measures = FaceMeasures(
         u,
         _owned_nodes_on(V, model.plated_facet_tags, TOP.id),
         _owned_nodes_on(V, model.plated_facet_tags, BASE.id),
     )
     Xd = V.tabulate_dof_coordinates()
+    top_dofs = block.top_dofs
     state = {"lam": 0.0}
     ezv = np.array([0.0, 0.0, 1.0])
 
@@ -453,21 +475,16 @@ def run_coupled(model: TiedBlock, run: RunContext) -> None:
         twist_predictor(u, model.length, _twist_increment(model, measures, l0, l1))
         if model.rotation_driven:
             R = rotation_about(ezv, l1 * model.prescribed_rotation)
-            u_top.x.array[:] = (Xd @ R.T - Xd).ravel()
+            block.u_top.x.array[:] = (Xd @ R.T - Xd).ravel()
             u.x.array.reshape(-1, 3)[top_dofs] = Xd[top_dofs] @ R.T - Xd[top_dofs]
         else:
-            torque.value = l1 * model.torque
+            block.torque.value = l1 * model.torque
         its = solver.solve(step=f"load factor {l1:.4g}")
         state["lam"] = l1
         logger.info("tied-block coupled: load factor %.4g, %d Newton iterations", l1, its)
 
-    def assembled_residual() -> PETSc.Vec:
-        vec = fem_petsc.assemble_vector(residual_form)
-        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        return vec
-
     def on_step(lam: float) -> None:
-        vec = assembled_residual()
+        vec = block.assembled_residual()
         _record(model, recorder, measures, lam, measures.base_torque(vec))
         vec.destroy()
         monitor.sample()
@@ -483,12 +500,12 @@ def run_coupled(model: TiedBlock, run: RunContext) -> None:
             stats=stats,
         )
     finally:
-        vec = assembled_residual()
+        vec = block.assembled_residual()
         _probes(model, recorder, measures, vec, state["lam"])
         vec.destroy()
         recorder.add_solver_counts(solver.stats, stats)
         recorder.extra("newton_iterations_per_step", list(solver.stats.history))
-    _write_fields(model, mesh, u, fields_dir)
+    _write_fields(model, model.plated_mesh, u, run.fields)
     solver.destroy()
 
 

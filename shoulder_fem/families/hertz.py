@@ -1,36 +1,10 @@
-"""The ``hertz`` scene family: an elastic ball on a rigid or deformable flat, or in a rigid socket.
+"""The ``hertz`` scene family: an elastic ball pressed on a flat or into a socket, against Hertz.
 
-The verification scene of the contact code (:mod:`shoulder_fem.contact`) against Hertz theory.
-The ball (radius R, Young's modulus E, Poisson's ratio ν, small strain: Hertz is a linear
-theory) is modelled by its lower half, a quarter of it with the symmetry planes x = 0 and
-y = 0; its pole touches the counterpart at the origin. The counterpart is the rigid plane
-z = 0 (``flat``), a rigid spherical socket of radius Rs > R centred at (0, 0, Rs) (``socket``),
-or an elastic block (E₂, ν₂) below z = 0 (``deformable_flat``, mesh-to-mesh contact): the
-quarter [0, w] x [0, w] x [−d, 0] meshed independently of the ball (no shared node), its
-bottom fixed in z, its faces x = 0 and y = 0 symmetry planes, w and d multiples of the Hertz
-contact radius a (20 a by default: the half-space is truncated, and its fixed bottom stiffens
-it; measured at the coarse level, 12 a gives p0 +1.8 % and a +0.6 %, 20 a +0.4 % and −0.1 %, for
-500 more DOFs). The slave is the ball's spherical surface, the master the block's top face
-(segment integration), with its own penalty factor (``mesh_penalty_factor``, see the scene
-file: a stiff penalty turns the misfit of the two faceted surfaces at the segments' points
-into pressure oscillations). The ball's flat top face is driven down by an approach δ, adjusted by
-secant iterations until the contact force is the scene's force F (to ``force_tolerance``); F
-is reached in ``load_steps`` equal increments.
-
-Hertz: 1/E* = (1 − ν²)/E + (1 − ν₂²)/E₂ (E* = E/(1 − ν²) against a rigid counterpart);
-R* = R on the flats, R Rs/(Rs − R) in the socket (the conforming estimate);
-a = (3 F R*/(4 E*))^(1/3); p0 = 3 F/(2 π a²).
-
-Measured: the largest quadrature-point pressure, the contact radius from the contact area
-(a = √(4 A/π) for the quarter model), the contact force (and, independently, the reaction on the
-driven face), the penetration, and the Newton and Uzawa iteration counts.
-
-Element: P1 tetrahedra (a metal: no locking), contact evaluated at the slave nodes (nodal
-quadrature), mesh sizes relative to the Hertz contact radius of the scene, so that levels are
-refinements of the same problem. 10-node tetrahedra are a poor choice here: under a uniform
-pressure their vertex loads are zero, and a stiff penalty makes the pressure oscillate from
-node to node (measured at the coarse level: peak pressure +19 % to +34 % too high with nodal or
-Gauss contact points; +2 % with Gauss points and a penalty 10 times softer).
+The verification scene of the contact code (:mod:`shoulder_fem.engine.contact`). Owns Hertz's
+solution (:func:`hertz_solution`), :class:`HertzModel` (the typed scene parameters and the
+quarter-ball mesh), :class:`HertzProblem` (the ball, and a deformable block if any, driven by
+the approach of its top face until the contact force is the scene's) and the run that records
+pressure and contact radius against theory.
 """
 
 from __future__ import annotations
@@ -103,7 +77,7 @@ def hertz_solution(
     return HertzSolution(a, 3.0 * force / (2.0 * math.pi * a * a), a * a / r_eff, r_eff, e_star)
 
 
-@dataclass
+@dataclass(frozen=True)
 class HertzModel:
     """Everything a run needs (SI units)."""
 
@@ -243,43 +217,83 @@ def dofs(model: HertzModel) -> int:
     return V.dofmap.index_map.size_global * V.dofmap.index_map_bs
 
 
+def internal_power(model: HertzModel, u, w, dx: ufl.Measure) -> ufl.Form:
+    """Linear elastic internal power of the ball, and of the block on a deformable flat."""
+    from shoulder_fem.meshes.contact_bodies import BALL, BLOCK
+
+    material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
+    if model.deformable:
+        block = materials.LinearElastic(
+            model.counterpart_youngs_modulus, model.counterpart_poisson_ratio
+        )
+        return vp.internal_power_linear(material, u, w, dx(BALL.id)) + vp.internal_power_linear(
+            block, u, w, dx(BLOCK.id)
+        )
+    return vp.internal_power_linear(material, u, w, dx)
+
+
 class HertzProblem:
     """The quarter ball (and block) with its contact, driven by the approach δ (collective)."""
 
     def __init__(self, model: HertzModel, options: dict | None = None):
+        from shoulder_fem.meshes.contact_bodies import CONTACT
+
+        self.model = model
+        V = self.V = vector_space(model)
+        u = self.u = dolfinx.fem.Function(V, name="displacement")
+        q = {"quadrature_degree": 2 * (model.degree - 1)}
+        dx = ufl.Measure("dx", domain=model.mesh, subdomain_data=model.cell_tags, metadata=q)
+        self.internal = internal_power(model, u, ufl.TestFunction(V), dx)
+        self._internal_form = dolfinx.fem.form(self.internal, form_compiler_params=q)
+        bcs = self.bcs = self._boundary_conditions()
+        pair = ContactPair(
+            "ball",
+            (CONTACT.id,),
+            model.master(),
+            penalty=model.penalty,
+            method=model.contact_method,
+            gap_tolerance=model.gap_tolerance,
+        )
+        self.contact = Contact(V, u, model.facet_tags, [pair], bcs=bcs, quadrature_degree=0)
+        force_scale = model.force / SYMMETRY_FACTOR
+        self.solver = NonlinearSolver(
+            self.internal,
+            u,
+            bcs,
+            name="hertz",
+            options={
+                "snes_atol": 1e-9 * force_scale,
+                "snes_rtol": 1e-9,
+                "snes_divergence_tolerance": -1.0,
+                # mesh master: the active set settles over more iterations (measured: up to 17)
+                **({"snes_max_it": 50} if model.deformable else {}),
+                **(options or {}),
+            },
+            form_compiler_params=q,
+            contact=self.contact,
+        )
+        self.delta = 0.0
+        #: the solution before the last one: (approach, displacement array)
+        self._previous = (0.0, np.zeros_like(u.x.array))
+        self.newton: list[int] = []
+        self.uzawa: list[int] = []
+
+    def _boundary_conditions(self) -> list:
+        """Symmetry planes, the driven top face and, on a deformable flat, the block's bottom."""
         from shoulder_fem.meshes.contact_bodies import (
             BALL,
-            BLOCK,
             BLOCK_BOTTOM,
             BLOCK_SYM_X,
             BLOCK_SYM_Y,
-            CONTACT,
             SYM_X,
             SYM_Y,
             TOP,
         )
 
-        self.model = model
+        model, V = self.model, self.V
         mesh = model.mesh
-        V = self.V = vector_space(model)
-        u = self.u = dolfinx.fem.Function(V, name="displacement")
-        w = ufl.TestFunction(V)
-        q = {"quadrature_degree": 2 * (model.degree - 1)}
-        dx = ufl.Measure("dx", domain=mesh, subdomain_data=model.cell_tags, metadata=q)
-        material = materials.LinearElastic(model.youngs_modulus, model.poisson_ratio)
-        if model.deformable:
-            block = materials.LinearElastic(
-                model.counterpart_youngs_modulus, model.counterpart_poisson_ratio
-            )
-            self.internal = vp.internal_power_linear(
-                material, u, w, dx(BALL.id)
-            ) + vp.internal_power_linear(block, u, w, dx(BLOCK.id))
-        else:
-            self.internal = vp.internal_power_linear(material, u, w, dx)
-        self._internal_form = dolfinx.fem.form(self.internal, form_compiler_params=q)
         fdim = mesh.topology.dim - 1
         ft = model.facet_tags
-        self.approach = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0.0))
         bcs = []
         sym = ((0, SYM_X, BLOCK_SYM_X), (1, SYM_Y, BLOCK_SYM_Y))
         for comp, *markers in sym:
@@ -304,38 +318,7 @@ class HertzProblem:
             )
         else:
             self._ball_nodes = slice(None)
-        self.bcs = bcs
-        pair = ContactPair(
-            "ball",
-            (CONTACT.id,),
-            model.master(),
-            penalty=model.penalty,
-            method=model.contact_method,
-            gap_tolerance=model.gap_tolerance,
-        )
-        self.contact = Contact(V, u, ft, [pair], bcs=bcs, quadrature_degree=0)
-        force_scale = model.force / SYMMETRY_FACTOR
-        self.solver = NonlinearSolver(
-            self.internal,
-            u,
-            bcs,
-            name="hertz",
-            options={
-                "snes_atol": 1e-9 * force_scale,
-                "snes_rtol": 1e-9,
-                "snes_divergence_tolerance": -1.0,
-                # mesh master: the active set settles over more iterations (measured: up to 17)
-                **({"snes_max_it": 50} if model.deformable else {}),
-                **(options or {}),
-            },
-            form_compiler_params=q,
-            contact=self.contact,
-        )
-        self.delta = 0.0
-        #: the solution before the last one: (approach, displacement array)
-        self._previous = (0.0, np.zeros_like(u.x.array))
-        self.newton: list[int] = []
-        self.uzawa: list[int] = []
+        return bcs
 
     def solve(self, delta: float, step: str, cold_start: bool = True) -> float:
         """Drive the top face down by ``delta`` (m); return the total contact force (N).

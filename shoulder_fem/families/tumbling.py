@@ -26,11 +26,11 @@ from shoulder_fem.engine.floating import FloatingBody
 from shoulder_fem.engine.floating_forms import mean_axes_forms
 from shoulder_fem.engine.mass import MassProperties, mass_properties
 from shoulder_fem.engine.motion_measures import MotionMeasures
+from shoulder_fem.engine.newmark import NewmarkState
 from shoulder_fem.engine.rigid import NewtonEuler, RigidState
 from shoulder_fem.engine.solver import ConvergenceError, SolveStats, StepperStats, march, time_grid
 from shoulder_fem.families.base import Family, RunContext
-from shoulder_fem.families.driven_body.decoupled import INDICATOR_WARNING, DecouplingIndicator
-from shoulder_fem.families.driven_body.model import NewmarkState
+from shoulder_fem.families.driven_body.indicator import INDICATOR_WARNING, DecouplingIndicator
 from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.io.results import FieldWriter

@@ -12,6 +12,7 @@ import numpy as np
 import ufl
 
 from shoulder_fem.engine.fem import constant
+from shoulder_fem.engine.newmark import NewmarkState
 from shoulder_fem.engine.solver import NonlinearSolver
 from shoulder_fem.families.base import RunContext, SolverOptions
 from shoulder_fem.families.driven_body.model import (
@@ -21,7 +22,6 @@ from shoulder_fem.families.driven_body.model import (
     quadrature,
     vector_space,
 )
-from shoulder_fem.families.driven_body.newmark import NewmarkState
 from shoulder_fem.families.driven_body.outputs import BodyOutputs, LastStep, boundary_reaction
 from shoulder_fem.families.driven_body.stepping import MethodSteps, march_driven_body
 from shoulder_fem.forms import kinematics, materials

@@ -13,12 +13,11 @@ import ufl
 
 from shoulder_fem.engine.fem import constant
 from shoulder_fem.engine.mass import mass_properties
+from shoulder_fem.engine.newmark import NewmarkState
 from shoulder_fem.engine.solver import NonlinearSolver
 from shoulder_fem.families.base import RunContext, SolverOptions
 from shoulder_fem.families.driven_body.frame import FloatingFrame
 from shoulder_fem.families.driven_body.indicator import (
-    INDICATOR_WARNING,
-    DecouplingIndicator,
     DecouplingRecord,
 )
 from shoulder_fem.families.driven_body.model import (
@@ -28,7 +27,6 @@ from shoulder_fem.families.driven_body.model import (
     quadrature,
     vector_space,
 )
-from shoulder_fem.families.driven_body.newmark import NewmarkState
 from shoulder_fem.families.driven_body.outputs import BodyOutputs, LastStep, boundary_reaction
 from shoulder_fem.families.driven_body.rate_operator import RateOperator
 from shoulder_fem.families.driven_body.stepping import MethodSteps, march_driven_body
@@ -40,10 +38,7 @@ from shoulder_fem.families.driven_body.variants import (
 from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.forms import virtual_power as vp
 
-# INDICATOR_WARNING and DecouplingIndicator live in .indicator; families.tumbling imports them here.
 __all__ = [
-    "INDICATOR_WARNING",
-    "DecouplingIndicator",
     "FloatingFrameProblem",
     "run_decoupled",
 ]

@@ -19,9 +19,9 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.fem import constant
 from shoulder_fem.engine.mass import MassProperties
+from shoulder_fem.engine.newmark import NewmarkState
 from shoulder_fem.families.driven_body.frame import FloatingFrame
 from shoulder_fem.families.driven_body.model import DrivenBody
-from shoulder_fem.families.driven_body.newmark import NewmarkState
 from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.io.results import Recorder
 

@@ -15,16 +15,13 @@ from mpi4py import MPI
 
 from shoulder_fem.engine.rigid import SpinUp
 from shoulder_fem.engine.solver import time_grid
-from shoulder_fem.families.driven_body.newmark import NewmarkState
 from shoulder_fem.meshes.bar import ROOT, build_bar
 from shoulder_fem.scene import Scene, SceneError
 
-# NewmarkState lives in .newmark; families.tumbling imports it here.
 __all__ = [
     "SPIN_AXES",
     "VARIANTS",
     "DrivenBody",
-    "NewmarkState",
     "build",
     "clamp_dofs",
     "dof_coordinates",

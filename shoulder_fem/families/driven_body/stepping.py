@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import dolfinx
 import numpy as np
 
+from shoulder_fem.engine.newmark import NewmarkState
 from shoulder_fem.engine.solver import NonlinearSolver, StepperStats, march
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.driven_body.model import DrivenBody
-from shoulder_fem.families.driven_body.newmark import NewmarkState
 from shoulder_fem.families.driven_body.outputs import BodyOutputs, LastStep, finish_probes
 from shoulder_fem.io.results import FieldWriter
 

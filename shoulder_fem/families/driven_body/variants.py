@@ -14,11 +14,11 @@ import numpy as np
 import ufl
 
 from shoulder_fem.engine.fem import constant
+from shoulder_fem.engine.newmark import NewmarkState
 from shoulder_fem.engine.solver import NonlinearSolver
 from shoulder_fem.families.base import SolverOptions
 from shoulder_fem.families.driven_body.frame import FloatingFrame
 from shoulder_fem.families.driven_body.model import DrivenBody, quadrature
-from shoulder_fem.families.driven_body.newmark import NewmarkState
 from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.forms import virtual_power as vp
 

@@ -5,7 +5,9 @@ point x_m on the master, its outward normal n (out of the master's solid, toward
 and the signed gap g = (x_q - x_m) . n (negative = penetration); the normal pressure p (penalty
 or augmented Lagrangian, :func:`~.pair.normal_pressure`); with friction coefficient mu > 0 the
 tangential traction of a regularised Coulomb law, t = -mu p s / sqrt(|s|^2 + e_s^2), s the
-relative slip over the load step projected on the tangent plane. Pressures are nominal (per
+relative slip over the load step projected on the tangent plane. The force (p n + t) dA acts
+on the slave point and its opposite on the master, spread with the slave facet's shape
+functions and the master's barycentric weights (:func:`couplings`). Pressures are nominal (per
 unit reference area of the slave).
 
 A pair's state is a dict of arrays over its points (:func:`evaluate_pair` lists the keys).

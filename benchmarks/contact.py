@@ -48,8 +48,8 @@ from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
 from shoulder_fem.engine.solver import NonlinearSolver
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.io.output import atomic_write_json
 from shoulder_fem.io.resources import ResourceMonitor, blas_library, thread_settings
-from shoulder_fem.io.results import atomic_write_json
 from shoulder_fem.meshes import contact_bodies as cb
 
 E, NU = 1.0e9, 0.3

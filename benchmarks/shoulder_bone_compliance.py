@@ -35,8 +35,8 @@ from mpi4py import MPI
 
 from shoulder_fem import api
 from shoulder_fem.cli import setup_logging
+from shoulder_fem.io.output import atomic_write_json
 from shoulder_fem.io.plots import plt, save_figure
-from shoulder_fem.io.results import atomic_write_json
 from shoulder_fem.scene import load_scene
 
 SCENE = "shoulder-internal-rotation"

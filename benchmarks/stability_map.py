@@ -25,8 +25,8 @@ from mpi4py import MPI
 
 from shoulder_fem import RunFailed, load_scene, run
 from shoulder_fem.io.compare import series_metrics
+from shoulder_fem.io.output import atomic_write_json
 from shoulder_fem.io.resources import blas_library
-from shoulder_fem.io.results import atomic_write_json
 
 VARIANTS = ("paper", "spin-softening", "stress-stiffening")
 

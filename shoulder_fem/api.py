@@ -57,7 +57,7 @@ class Result:
 
 def _make_parent(out: Path, comm: MPI.Comm) -> None:
     """Create ``out``'s parent folders on rank 0; every rank raises the same error on failure."""
-    from shoulder_fem.io.results import OutputError
+    from shoulder_fem.io.output import OutputError
 
     error = None
     if comm.rank == 0:
@@ -113,8 +113,9 @@ def run(
         The run's summary.
     """
     from shoulder_fem.engine.solver import ConvergenceError
+    from shoulder_fem.io.output import OutputDir
     from shoulder_fem.io.resources import ResourceMonitor, blas_library, thread_settings
-    from shoulder_fem.io.results import OutputDir, Recorder
+    from shoulder_fem.io.results import Recorder
 
     if isinstance(scene, str | Path):
         scene = load_scene(scene)

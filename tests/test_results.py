@@ -22,6 +22,14 @@ import pytest
 from mpi4py import MPI
 
 from shoulder_fem import __version__
+from shoulder_fem.io.fields import FieldWriter
+from shoulder_fem.io.output import (
+    SUMMARY_NAME,
+    OutputDir,
+    OutputError,
+    atomic_write_json,
+    to_jsonable,
+)
 from shoulder_fem.io.resources import (
     MB,
     ResourceMonitor,
@@ -29,16 +37,7 @@ from shoulder_fem.io.resources import (
     dir_size_bytes,
     thread_settings,
 )
-from shoulder_fem.io.results import (
-    SUMMARY_NAME,
-    FieldWriter,
-    OutputDir,
-    OutputError,
-    Recorder,
-    atomic_write_json,
-    load_summary,
-    to_jsonable,
-)
+from shoulder_fem.io.results import Recorder, load_summary
 
 COMM = MPI.COMM_WORLD
 

@@ -91,7 +91,8 @@ def cmd_compare(args) -> int:
     """Compare two finished runs; write comparison.json and figures."""
     from mpi4py import MPI
 
-    from shoulder_fem.io.results import OutputDir, load_summary
+    from shoulder_fem.io.output import OutputDir
+    from shoulder_fem.io.results import load_summary
 
     comm = MPI.COMM_WORLD
     ref, other = load_summary(args.ref), load_summary(args.other)
@@ -105,7 +106,7 @@ def cmd_compare(args) -> int:
 def write_comparison(ref: dict, other: dict, folder: Path, comm) -> dict:
     """Metrics + figures of ``other`` against ``ref`` into ``folder`` (rank 0 writes)."""
     from shoulder_fem.io.compare import compare_summaries
-    from shoulder_fem.io.results import atomic_write_json
+    from shoulder_fem.io.output import atomic_write_json
 
     report = compare_summaries(ref, other)
     if comm.rank == 0:
@@ -149,7 +150,7 @@ def cmd_bench(args) -> int:
 
     from shoulder_fem.api import METHODS, RunFailed, run, scene_family
     from shoulder_fem.families.base import BenchReport
-    from shoulder_fem.io.results import OutputDir
+    from shoulder_fem.io.output import OutputDir
 
     comm = MPI.COMM_WORLD
     scene, options = _prepare(args)
@@ -178,7 +179,7 @@ def cmd_bench(args) -> int:
 def generic_report(bench) -> str:
     """The ``bench`` report of a family without its own: metrics, figures, resources table."""
     from shoulder_fem.io.compare import resources_table
-    from shoulder_fem.io.results import atomic_write_json, atomic_write_text
+    from shoulder_fem.io.output import atomic_write_json, atomic_write_text
 
     coupled, decoupled = bench.runs["coupled"], bench.runs["decoupled"]
     report = write_comparison(coupled, decoupled, bench.folder, bench.comm)

@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")  # figures are files; no display needed
     from shoulder_fem.cli import commands
     from shoulder_fem.cli.mesh import cmd_mesh
-    from shoulder_fem.io.results import OutputError
+    from shoulder_fem.io.output import OutputError
     from shoulder_fem.scene import SceneError
 
     signal.signal(signal.SIGTERM, _raise_on_sigterm)

@@ -10,7 +10,7 @@ Builds the parametric shoulder of a ``family = "shoulder"`` scene and writes, at
 * ``DIR/mesh.png``: bones, cartilages and muscles in distinct colours, and a density slice.
 
 Input errors raise :class:`shoulder_fem.scene.SceneError` or
-:class:`shoulder_fem.results.OutputError` (exit status 2 in the CLI).
+:class:`shoulder_fem.io.output.OutputError` (exit status 2 in the CLI).
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def cmd_mesh(args) -> int:
     from mpi4py import MPI
 
     from shoulder_fem.io import ct as dens
-    from shoulder_fem.io.results import OutputDir, atomic_write_json
+    from shoulder_fem.io.output import OutputDir, atomic_write_json
     from shoulder_fem.meshes import shoulder as sh
     from shoulder_fem.scene import SceneError, load_scene
 

@@ -533,7 +533,7 @@ def _record(model: HertzModel, problem: HertzProblem, recorder, reached: float) 
 
 
 def _write_fields(problem: HertzProblem, fields_dir) -> None:
-    from shoulder_fem.io.results import FieldWriter
+    from shoulder_fem.io.fields import FieldWriter
 
     mesh = problem.V.mesh
     V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))

@@ -267,7 +267,7 @@ def _twist_increment(model: TiedBlock, measures: FaceMeasures, l0: float, l1: fl
 
 
 def _write_fields(model, mesh, u, fields_dir) -> None:
-    from shoulder_fem.io.results import FieldWriter
+    from shoulder_fem.io.fields import FieldWriter
 
     V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
     u1 = dolfinx.fem.Function(V1, name="displacement")

@@ -33,7 +33,7 @@ from shoulder_fem.families.base import Family, RunContext
 from shoulder_fem.families.driven_body.indicator import INDICATOR_WARNING, DecouplingIndicator
 from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.forms import virtual_power as vp
-from shoulder_fem.io.results import FieldWriter
+from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.meshes.box import build_box
 from shoulder_fem.scene import Scene, SceneError
 

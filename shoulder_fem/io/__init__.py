@@ -1,1 +1,1 @@
-"""Output folders and summaries, resources, comparisons, plots, CT images."""
+"""Atomic output, run summaries, XDMF fields, resources, comparisons, plots, CT images."""

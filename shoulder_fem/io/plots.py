@@ -10,7 +10,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from shoulder_fem.io.results import atomic_write_bytes
+from shoulder_fem.io.output import atomic_write_bytes
 
 METHOD_STYLE = {"coupled": dict(color="C0", lw=2.0), "decoupled": dict(color="C3", lw=1.2, ls="--")}
 

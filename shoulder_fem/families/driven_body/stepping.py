@@ -20,7 +20,7 @@ from shoulder_fem.engine.solver import NonlinearSolver, StepperStats, march
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.driven_body.model import DrivenBody
 from shoulder_fem.families.driven_body.outputs import BodyOutputs, LastStep, finish_probes
-from shoulder_fem.io.results import FieldWriter
+from shoulder_fem.io.fields import FieldWriter
 
 logger = logging.getLogger(__name__)
 

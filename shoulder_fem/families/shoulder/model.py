@@ -80,7 +80,7 @@ from shoulder_fem.families.base import RunContext
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.io import ct
-from shoulder_fem.io.results import atomic_savez
+from shoulder_fem.io.output import atomic_savez
 from shoulder_fem.meshes import shoulder as S
 from shoulder_fem.scene import Scene
 

@@ -17,7 +17,7 @@ from shoulder_fem.families.shoulder.report.data import RunData, load_run
 from shoulder_fem.families.shoulder.report.figures import write_figures
 from shoulder_fem.families.shoulder.report.metrics import compare_runs, resource_table, time_split
 from shoulder_fem.families.shoulder.report.tables import comparison_table, markdown_report
-from shoulder_fem.io.results import atomic_write_json, atomic_write_text, to_jsonable
+from shoulder_fem.io.output import atomic_write_json, atomic_write_text, to_jsonable
 
 ANGLE_MATCH_DEG = 0.05
 """Two runs reached the same final angle if they differ by less than this [deg] (each is

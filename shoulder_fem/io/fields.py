@@ -1,0 +1,121 @@
+"""Fields for ParaView: time series of dolfinx functions in one XDMF/HDF5 file pair.
+
+A run writes them to ``<out>/fields/<name>.xdmf`` (:meth:`OutputDir.field_file
+<shoulder_fem.io.output.OutputDir.field_file>`) through :class:`FieldWriter`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import dolfinx.fem
+    import dolfinx.mesh
+    from mpi4py import MPI
+
+__all__ = ["FieldWriter"]
+
+
+class FieldWriter:
+    """Time series of fields in one XDMF/HDF5 file pair for ParaView (collective throughout).
+
+    The mesh is written once at construction; :meth:`write` appends the given functions at a
+    time. Each function appears under its ``name``.
+
+    dolfinx 0.5.2's ``XDMFFile.write_function`` evaluates any Lagrange-type function (P1, P2,
+    enriched, sub-functions ``u.sub(i)``) at the mesh's geometry nodes and writes DG0 functions,
+    scalar, vector or tensor, as cell data; both were checked in serial and on 2 ranks (P2 values
+    at the nodes agree with a P1 interpolation to round-off). So no interpolation is done here:
+    a P2 displacement is shown at the vertices, a DG0 stress per cell. Mixed-element functions
+    and quadrature functions are refused (write ``w.sub(i)``, or project to DG0, instead).
+
+    Args:
+        comm: communicator of the mesh.
+        mesh: the mesh all written functions live on.
+        path: the ``.xdmf`` file (the ``.h5`` goes next to it), e.g.
+            ``out.field_file("bone")``; its folder is created if missing.
+    """
+
+    def __init__(self, comm: MPI.Comm, mesh: dolfinx.mesh.Mesh, path: Path) -> None:
+        from dolfinx.io import XDMFFile
+
+        self.comm = comm
+        self.mesh = mesh
+        self.path = Path(path).with_suffix(".xdmf")
+        if comm.rank == 0:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        comm.Barrier()
+        self._file = XDMFFile(comm, str(self.path), "w")
+        self._file.write_mesh(mesh)
+        self._times: dict[str, list[float]] = {}
+        self._closed = False
+
+    @staticmethod
+    def _check_writable(u: dolfinx.fem.Function) -> None:
+        import ufl
+
+        element = u.function_space.ufl_element()
+        if element.family() == "Quadrature":
+            raise ValueError(f"field {u.name!r}: quadrature functions cannot be written to XDMF")
+        if isinstance(element, ufl.MixedElement) and not isinstance(
+            element, (ufl.VectorElement, ufl.TensorElement)
+        ):
+            raise ValueError(
+                f"field {u.name!r} is on a mixed element; write its parts w.sub(i) instead"
+            )
+
+    def write(self, functions: Sequence[dolfinx.fem.Function], t: float) -> None:
+        """Append the functions at time ``t`` (collective; same list and ``t`` on every rank).
+
+        Args:
+            functions: functions on this writer's mesh, with distinct names.
+            t: the time (or load parameter) of this frame [s].
+
+        Raises:
+            ValueError: for a function on another mesh, duplicate names, a time not later than
+                the previous frame of that function, or an element XDMF cannot hold.
+        """
+        if self._closed:
+            raise ValueError(f"{self.path}: FieldWriter is closed")
+        names = [u.name for u in functions]
+        if len(set(names)) != len(names):
+            raise ValueError(f"{self.path}: duplicate field names {names}")
+        t = float(t)
+        for u in functions:
+            if u.function_space.mesh is not self.mesh:
+                raise ValueError(f"field {u.name!r} is not on the mesh of {self.path}")
+            self._check_writable(u)
+            previous = self._times.get(u.name)
+            if previous and t <= previous[-1]:
+                raise ValueError(
+                    f"field {u.name!r}: time {t} is not after the last written {previous[-1]}"
+                )
+        for u in functions:
+            u.x.scatter_forward()
+            self._file.write_function(u, t)
+            self._times.setdefault(u.name, []).append(t)
+
+    @property
+    def times(self) -> dict[str, list[float]]:
+        """The times written so far, per field name [s]."""
+        return {k: list(v) for k, v in self._times.items()}
+
+    def close(self) -> None:
+        """Close the file (collective; idempotent)."""
+        if not self._closed:
+            self._file.close()
+            self._closed = True
+
+    def __enter__(self) -> FieldWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

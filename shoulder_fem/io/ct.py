@@ -14,6 +14,7 @@ Units: SI in code (kg/m^3, Pa, m); images carry their own affine in mm.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -273,11 +274,9 @@ def shoulder_phantom(
 ) -> CTImage:
     """CT-like phantom of the parametric humeral head and glenoid/scapular neck region.
 
-    Bone is described implicitly, following the builder's shapes: the subchondral humeral sphere,
-    the metaphysis/shaft as a capsule around the shaft axis, the blade (tapered slab), the neck
-    (elliptic sections from the blade to the glenoid oval) and the glenoid plate hollowed by the
-    subchondral glenoid sphere; the gradient centre is the joint. The image covers both bones;
-    outside it, values are clamped to the nearest voxel.
+    Bone is described implicitly, following the builder's shapes (:class:`_ShoulderBones`); the
+    gradient centre is the joint. The image covers both bones; outside it, values are clamped to
+    the nearest voxel.
 
     Args:
         geometry: a :class:`shoulder_fem.meshes.shoulder.ShoulderGeometry`.
@@ -285,75 +284,108 @@ def shoulder_phantom(
         margin: extra space around the bones (m).
         calibration: HU calibration.
     """
-    from shoulder_fem.meshes import shoulder
-
-    lay = shoulder.layout(geometry)
-    rb = geometry.subchondral_radius
-    s_dir, s_base = shoulder.shaft_axis(geometry)
-    s_dir = lay.rot @ s_dir
-    s_base = lay.rot @ (s_base + geometry.humeral_shift) * 1e-3
-    x_med = lay.x_med * 1e-3
-    z_top, z_bot = lay.z_top * 1e-3, lay.z_bot * 1e-3
-    cg = lay.rot @ np.array(
-        [geometry.glenoid_radius - geometry.articular_radius - geometry.contact_offset, 0, 0]
-    )
-    r_sub = geometry.glenoid_radius + geometry.glenoid_cartilage_thickness
-    length = geometry.shaft_length
-
-    height, width = geometry.glenoid_height, geometry.glenoid_width
-    x_lat = lay.x_lat * 1e-3
-    px0, px1 = (v * 1e-3 for v in lay.plate_x)  # glenoid plate's x range (glenoid frame)
-    cg_g = lay.rot.T @ cg
-
-    def ellipse_depth(u: np.ndarray, v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Approximate depth inside the ellipse (u/a)^2 + (v/b)^2 <= 1 (m, > 0 inside)."""
-        return np.minimum(a, b) * (1.0 - np.sqrt((u / a) ** 2 + (v / b) ** 2))
-
-    def parts(p: np.ndarray) -> list[np.ndarray]:
-        # Each part reaches a few mm into the next, so that their junctions are no surface.
-        head = rb - np.linalg.norm(p, axis=1)
-        t = np.clip((p - s_base) @ s_dir, 0.0, length)
-        radial = np.linalg.norm(p - s_base - t[:, None] * s_dir, axis=1)
-        shaft = geometry.shaft_radius - radial
-        x, y, z = p[:, 0], p[:, 1], p[:, 2]
-        half = shoulder.blade_half_thickness(geometry, x * 1e3) * 1e-3
-        blade = np.minimum.reduce(
-            [half - np.abs(y), z - z_bot, z_top - z, x - x_med, x_lat + 4e-3 - x]
-        )
-        # Neck: elliptic sections from the junction oval at the blade to the glenoid oval.
-        f = np.clip((x - x_lat) / (px0 - x_lat), 0.0, 1.0)
-        a = (0.35 + 0.15 * f) * height
-        b = 0.5 * geometry.blade_thickness_lateral + f * (
-            0.5 * width - 0.5 * geometry.blade_thickness_lateral
-        )
-        neck = np.minimum.reduce([ellipse_depth(z, y, a, b), x - (x_lat - 5e-3), px0 + 3e-3 - x])
-        # Glenoid plate (glenoid frame), hollowed by the subchondral sphere.
-        q = p @ lay.rot  # rows: rot.T @ p
-        plate = np.minimum.reduce(
-            [
-                ellipse_depth(
-                    q[:, 2], q[:, 1], np.full(len(q), 0.5 * height), np.full(len(q), 0.5 * width)
-                ),
-                q[:, 0] - px0,
-                px1 - q[:, 0],
-                np.linalg.norm(q - cg_g, axis=1) - r_sub,
-            ]
-        )
-        return [head, shaft, blade, neck, plate]
-
-    def depth(p: np.ndarray) -> np.ndarray:
-        return np.max(np.stack(parts(p)), axis=0)
-
+    bones = _ShoulderBones(geometry)
+    lay, rb = bones.layout, bones.rb
     distal = np.asarray(lay.distal[0]) * 1e-3
     reach = geometry.shaft_radius + margin
-    lower = np.minimum(np.array([x_med, -rb, z_bot]) - margin, distal - reach)
-    upper = np.maximum(np.array([rb, rb, z_top]) + margin, distal + reach)
+    lower = np.minimum(np.array([bones.x_med, -rb, bones.z_bot]) - margin, distal - reach)
+    upper = np.maximum(np.array([rb, rb, bones.z_top]) + margin, distal + reach)
     return phantom_image(
-        lambda p: depth(p) > 0.0,
-        depth,
+        lambda p: bones.depth(p) > 0.0,
+        bones.depth,
         lower,
         upper,
         voxel=voxel,
         joint_centre=np.zeros(3),
         calibration=calibration,
     )
+
+
+def _ellipse_depth(u: np.ndarray, v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Approximate depth inside the ellipse (u/a)^2 + (v/b)^2 <= 1 (m, > 0 inside)."""
+    return np.minimum(a, b) * (1.0 - np.sqrt((u / a) ** 2 + (v / b) ** 2))
+
+
+class _ShoulderBones:
+    """The parametric bones as an implicit shape: depth (m) below their surface, > 0 inside.
+
+    Five parts, following the builder's shapes: the subchondral humeral sphere, the
+    metaphysis/shaft as a capsule around the shaft axis, the blade (tapered slab), the neck
+    (elliptic sections from the blade to the glenoid oval) and the glenoid plate hollowed by the
+    subchondral glenoid sphere. Each part reaches a few mm into the next, so that their junctions
+    are no surface. Lengths in m, in the model frame.
+    """
+
+    def __init__(self, geometry) -> None:
+        from shoulder_fem.meshes import shoulder
+
+        self.geometry = geometry
+        self.layout = lay = shoulder.layout(geometry)
+        self.blade_half_thickness = functools.partial(shoulder.blade_half_thickness, geometry)
+        self.rb = geometry.subchondral_radius
+        s_dir, s_base = shoulder.shaft_axis(geometry)
+        self.s_dir = lay.rot @ s_dir
+        self.s_base = lay.rot @ (s_base + geometry.humeral_shift) * 1e-3
+        self.x_med = lay.x_med * 1e-3
+        self.z_top, self.z_bot = lay.z_top * 1e-3, lay.z_bot * 1e-3
+        cg = lay.rot @ np.array(
+            [geometry.glenoid_radius - geometry.articular_radius - geometry.contact_offset, 0, 0]
+        )
+        self.r_sub = geometry.glenoid_radius + geometry.glenoid_cartilage_thickness
+        self.x_lat = lay.x_lat * 1e-3
+        self.px0, self.px1 = (v * 1e-3 for v in lay.plate_x)  # glenoid plate's x range
+        self.cg_g = lay.rot.T @ cg  # subchondral glenoid sphere's centre (glenoid frame)
+
+    def humerus(self, p: np.ndarray) -> list[np.ndarray]:
+        """Depths in the head sphere and in the shaft's capsule, points ``p`` (n, 3)."""
+        geometry = self.geometry
+        head = self.rb - np.linalg.norm(p, axis=1)
+        t = np.clip((p - self.s_base) @ self.s_dir, 0.0, geometry.shaft_length)
+        radial = np.linalg.norm(p - self.s_base - t[:, None] * self.s_dir, axis=1)
+        shaft = geometry.shaft_radius - radial
+        return [head, shaft]
+
+    def blade(self, p: np.ndarray) -> np.ndarray:
+        """Depth in the scapular blade, a tapered slab."""
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        half = self.blade_half_thickness(x * 1e3) * 1e-3
+        return np.minimum.reduce(
+            [
+                half - np.abs(y),
+                z - self.z_bot,
+                self.z_top - z,
+                x - self.x_med,
+                self.x_lat + 4e-3 - x,
+            ]
+        )
+
+    def neck(self, p: np.ndarray) -> np.ndarray:
+        """Depth in the neck: elliptic sections from the blade's junction to the glenoid oval."""
+        geometry, x_lat, px0 = self.geometry, self.x_lat, self.px0
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        f = np.clip((x - x_lat) / (px0 - x_lat), 0.0, 1.0)
+        a = (0.35 + 0.15 * f) * geometry.glenoid_height
+        b = 0.5 * geometry.blade_thickness_lateral + f * (
+            0.5 * geometry.glenoid_width - 0.5 * geometry.blade_thickness_lateral
+        )
+        return np.minimum.reduce([_ellipse_depth(z, y, a, b), x - (x_lat - 5e-3), px0 + 3e-3 - x])
+
+    def plate(self, p: np.ndarray) -> np.ndarray:
+        """Depth in the glenoid plate (glenoid frame), hollowed by the subchondral sphere."""
+        height, width = self.geometry.glenoid_height, self.geometry.glenoid_width
+        q = p @ self.layout.rot  # rows: rot.T @ p
+        return np.minimum.reduce(
+            [
+                _ellipse_depth(
+                    q[:, 2], q[:, 1], np.full(len(q), 0.5 * height), np.full(len(q), 0.5 * width)
+                ),
+                q[:, 0] - self.px0,
+                self.px1 - q[:, 0],
+                np.linalg.norm(q - self.cg_g, axis=1) - self.r_sub,
+            ]
+        )
+
+    def depth(self, p: np.ndarray) -> np.ndarray:
+        """Depth (m) below the bone surface at points ``p`` (n, 3, m): the deepest part's."""
+        parts = [*self.humerus(p), self.blade(p), self.neck(p), self.plate(p)]
+        return np.max(np.stack(parts), axis=0)

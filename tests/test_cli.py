@@ -120,6 +120,31 @@ def test_driver_script(tmp_path):
         assert value == pytest.approx(91.8 * rate**2, rel=1e-6)
 
 
+@pytest.mark.parametrize("verbosity", ["", "-vv"])
+def test_form_compilation_is_quiet(tmp_path: Path, verbosity: str) -> None:
+    """On a cold form cache, the compiler's build steps (distutils logs them through the root
+    logger) stay off stderr at the default verbosity; at -vv, one line per compiled module."""
+    cache = tmp_path / "forms"
+    (tmp_path / "dolfinx_jit_parameters.json").write_text(f'{{"cache_dir": "{cache}"}}')
+    args = ["run", "tied-block", "--method", "coupled", "--level", "coarse"]
+    out = subprocess.run(
+        [sys.executable, "-m", "shoulder_fem.cli", *filter(None, [verbosity]), *args]
+        + ["--out", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, OMP_NUM_THREADS="1"),
+        cwd=tmp_path,  # dolfinx reads ./dolfinx_jit_parameters.json: an empty form cache
+    )
+    assert out.returncode == 0, out.stderr
+    compiled = sorted(p.name.split(".")[0] for p in cache.glob("libffcx_*.so"))
+    assert any(name.startswith("libffcx_forms_") for name in compiled), "no form was compiled"
+    root_lines = [line for line in out.stderr.splitlines() if line.startswith("INFO:root")]
+    if verbosity:
+        assert sorted(line.split("'")[1] for line in root_lines) == compiled, out.stderr
+    else:
+        assert "INFO:root" not in out.stderr, out.stderr
+
+
 def test_sigterm_removes_the_unfinished_output(tmp_path: Path) -> None:
     """``kill`` during a run: the command exits with 143 and says so, and no staging folder
     (``OUT.partial-*``) or half-written ``OUT`` is left behind."""

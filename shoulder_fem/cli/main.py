@@ -49,13 +49,53 @@ class _RankFilter(logging.Filter):
         return self.all_ranks or self.rank == 0
 
 
+_DISTUTILS = frozenset({"distutils", "_distutils"})  # the stdlib's, or setuptools' copy
+
+
+class _FormCompilerFilter(logging.Filter):
+    """Keeps the form compiler's build steps out of the log, but one line per module at -vv.
+
+    dolfinx compiles each form through FFCx and cffi; cffi runs distutils' ``build_ext``, which
+    logs four lines per compiled module at INFO through the root logger ("running build_ext",
+    "building '<module>' extension", the compiler and linker command lines), after lowering the
+    root logger's level to INFO for the build. This filter drops them, except the "building"
+    line when ``debug``.
+    """
+
+    def __init__(self, debug: bool) -> None:
+        super().__init__()
+        self.debug = debug
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.name != "root" or record.levelno >= logging.WARNING:
+            return True
+        if not _DISTUTILS & set(Path(record.pathname).parts):
+            return True
+        return self.debug and record.getMessage().startswith("building '")
+
+
 def setup_logging(verbosity: int, all_ranks: bool) -> None:
-    """Configure the package logger once: rank 0 only unless ``all_ranks``."""
+    """Configure the package logger once: rank 0 only unless ``all_ranks``.
+
+    Other libraries log through the root logger: warnings and errors only, unless ``verbosity``
+    is 2 or more (``-vv``: debug). The form compiler's build steps are quiet below ``-vv`` and one
+    line per compiled module at ``-vv`` (:class:`_FormCompilerFilter`).
+    """
     from mpi4py import MPI
 
-    # Claim the root logger first, so a library's later logging.basicConfig (the form compiler's
-    # build steps log at INFO through it) is a no-op and stays quiet below -vv.
-    logging.basicConfig(level=logging.DEBUG if verbosity > 1 else logging.WARNING)
+    debug = verbosity > 1
+    root = logging.getLogger()
+    # Claim the root logger first (as logging.basicConfig would), so a library's later
+    # logging.basicConfig is a no-op. The level is on the handler too: distutils changes the
+    # root logger's level around each form compilation, not the handler's.
+    if not root.handlers:
+        level = logging.DEBUG if debug else logging.WARNING
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter(logging.BASIC_FORMAT))
+        handler.setLevel(level)
+        handler.addFilter(_FormCompilerFilter(debug))
+        root.addHandler(handler)
+        root.setLevel(level)
     handler = logging.StreamHandler(sys.stderr)
     handler.addFilter(_RankFilter(MPI.COMM_WORLD.rank, all_ranks))
     handler.setFormatter(logging.Formatter("%(asctime)s %(rank_prefix)s%(message)s", "%H:%M:%S"))

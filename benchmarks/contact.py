@@ -244,6 +244,9 @@ def plot(points: list[dict], path: Path, ranks: int, extra: list[dict] = ()) -> 
 
     ``extra``: points of runs with another rank count, drawn as stars on the left.
     """
+    import matplotlib
+
+    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from shoulder_fem.io.plots import save_figure

@@ -30,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 from mpi4py import MPI
 
@@ -155,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _chart(result: dict, path: Path) -> None:
+    matplotlib.use("Agg")
     fig, axes = plt.subplots(
         1, len(SERIES), figsize=(4.2 * len(SERIES), 3.9), sharex=True, constrained_layout=True
     )

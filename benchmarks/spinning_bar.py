@@ -107,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
         "ratios": ratios,
     }
     if comm.rank == 0:
+        import matplotlib
+
+        matplotlib.use("Agg")
         from shoulder_fem.io import plots
 
         args.out.mkdir(parents=True, exist_ok=True)

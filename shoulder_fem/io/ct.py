@@ -1,15 +1,11 @@
-"""Bone density as the paper took it from CT: a CT-like phantom, a CT reader, nodal density, E(rho).
+"""Bone density from CT, as the paper took it: CT reader, CT-like phantom, nodal density, E(rho).
 
 The paper computed the bone density at every node from CT images and the modulus from it,
-E = E0 (rho / rho0)^2 (paper, Table I: E0 = 15 GPa, rho0 = 1.8 g/cm^3). We have no CT of the
-paper's shoulder, so :func:`phantom_image` makes a CT-like image of the parametric bones:
-cortical shell ~1.8 g/cm^3 over the outer ~2 mm, cancellous interior 0.3-0.6 g/cm^3 with a
-gradient (denser towards the joint). The image is stored in Hounsfield units with a linear
-calibration rho = a + b HU (:class:`Calibration`), as a NIfTI file with its affine (voxel indices
--> scanner coordinates in mm, the NIfTI convention). A real CT (NIfTI, or a DICOM series when
-pydicom is installed) goes through the same :func:`read_ct` / :func:`nodal_density` path.
-
-Units: SI in code (kg/m^3, Pa, m); images carry their own affine in mm.
+E = E0 (rho / rho0)^2 (paper, Table I: E0 = 15 GPa, rho0 = 1.8 g/cm^3). With no CT of the
+paper's shoulder, :func:`shoulder_phantom` makes a CT-like image of the parametric bones
+(:func:`phantom_image`); a real CT (NIfTI, or a DICOM series) goes through the same
+:func:`read_ct` / :func:`nodal_density` path. Images hold Hounsfield units with a linear
+calibration (:class:`Calibration`); units are SI in code (kg/m^3, Pa, m), mm in NIfTI files.
 """
 
 from __future__ import annotations

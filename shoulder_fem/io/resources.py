@@ -11,15 +11,6 @@ What a run costs is part of its result (ARCHITECTURE, "Interfaces"): every ``sum
 and the same wall / CPU / memory figures for named stages of the run. Throughout this module
 1 MB = 2**20 bytes (the unit of ``/proc/self/status``' kB is also 1024 bytes).
 
-Peak memory of a stage: at stage start the kernel's resident-memory high-water mark (``VmHWM``) is
-reset by writing ``5`` to ``/proc/self/clear_refs`` (Linux >= 4.0, own process). If the kernel
-refuses, the stage reports the process peak up to the stage end instead, and the output says so
-with ``peak_rss_stage_reset = false``. The run-wide peak is the peak since the monitor was made:
-at construction the freed heap is given back to the kernel (``malloc_trim``) and the mark is
-reset, so that of two runs in one process (``bench``) the second does not report the first's
-peak; the resident memory left at that point is reported as ``start_rss_mb``. The high-water
-mark is read before every reset and kept by every monitor alive in the process.
-
 The BLAS actually loaded in the process is read from ``/proc/self/maps`` by :func:`blas_library`.
 """
 
@@ -177,6 +168,16 @@ class ResourceMonitor:
     Construct it at the start of the run, on every rank. :meth:`stage` and :meth:`sample` use no
     MPI communication; :meth:`finish` is collective and does all reductions. Every rank must open
     the same stages in the same order.
+
+    Peak memory of a stage: at stage start the kernel's resident-memory high-water mark
+    (``VmHWM``) is reset by writing ``5`` to ``/proc/self/clear_refs`` (Linux >= 4.0, own
+    process). If the kernel refuses, the stage reports the process peak up to the stage end
+    instead, and the output says so with ``peak_rss_stage_reset = false``. The run-wide peak is
+    the peak since the monitor was made: at construction the freed heap is given back to the
+    kernel (``malloc_trim``) and the mark is reset, so that of two runs in one process
+    (``bench``) the second does not report the first's peak; the resident memory left at that
+    point is reported as ``start_rss_mb``. The high-water mark is read before every reset and
+    kept by every monitor alive in the process.
 
     Example:
         >>> mon = ResourceMonitor(comm, scratch_dir=out.scratch)

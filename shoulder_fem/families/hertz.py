@@ -410,7 +410,7 @@ class HertzProblem:
 
     def pressure_profile(self) -> tuple[np.ndarray, np.ndarray]:
         """(r, p) of the active quadrature points, on rank 0 sorted by r (others: empty)."""
-        st = self.contact._state[0]
+        st = self.contact.point_state(0)
         xq, p = st["xq"], st["p"]
         a = p > 0
         r = np.hypot(xq[a, 0], xq[a, 1])

@@ -337,6 +337,15 @@ class Contact:
         self._ensure()
         return output.master_points(self._state[i], self._masters[i])
 
+    def point_state(self, index: int) -> dict:
+        """The contact points of pair ``index`` at the last evaluation (this rank's, read only).
+
+        Keys: ``xq`` positions (m, (n, 3)), ``p`` normal pressures (Pa, (n,)), ``active``
+        flags, ``m_idx`` the master facet of each point (mesh masters), and the other
+        per-point arrays of the evaluation.
+        """
+        return self._state[index]
+
     def record(self, recorder, prefix: str = "", point: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
         """Put every pair's resultants in a run's probes as ``<prefix><pair>_<name>`` (SI)."""
         for pair, res in self.resultants(point).items():

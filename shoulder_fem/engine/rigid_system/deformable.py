@@ -1,0 +1,131 @@
+"""The deformable body of a :class:`RigidSystem`: its displacement, FE residual and tangent.
+
+Assembled without boundary conditions (ties and fixed nodes enter through the prolongation of
+:mod:`~shoulder_fem.engine.rigid_system.layout`), with the contact terms added; also what is
+measured at its nodes (reactions of fixed surfaces, positions of tied nodes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import dolfinx
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shoulder_fem.engine.rigid_system.bodies import RigidBody
+from shoulder_fem.engine.rigid_system.layout import ReducedLayout
+
+__all__ = ["DeformablePart"]
+
+
+class DeformablePart:
+    """The FE part of a system: displacement ``u`` (m), residual F (N) and tangent K (N/m).
+
+    Args:
+        u: Displacement (m), a 3D vector Lagrange function.
+        residual: UFL residual F(u; w) (N).
+        jacobian: UFL tangent of ``residual``; ``ufl.derivative`` if ``None``.
+        form_compiler_params: Passed to ``dolfinx.fem.form``.
+        contact: Contact terms on ``u`` (built with no Dirichlet conditions), or ``None``:
+            added to F and, by :meth:`contact_tangent`, to K.
+        layout: The system's layout (which nodes are free, tied, fixed).
+    """
+
+    def __init__(
+        self,
+        u: dolfinx.fem.Function,
+        residual: ufl.Form,
+        jacobian: ufl.Form | None,
+        form_compiler_params: dict | None,
+        contact,
+        layout: ReducedLayout,
+    ) -> None:
+        self.u = u
+        self.contact = contact
+        self.layout = layout
+        fco = form_compiler_params or {}
+        if jacobian is None:
+            jacobian = ufl.derivative(residual, u, ufl.TrialFunction(u.function_space))
+        self.F_form = dolfinx.fem.form(residual, form_compiler_params=fco)
+        self.J_form = dolfinx.fem.form(jacobian, form_compiler_params=fco)
+        #: The assembled residual (N) and tangent (N/m), without conditions.
+        self.F = fem_petsc.create_vector(self.F_form)
+        self.K = fem_petsc.create_matrix(self.J_form)
+
+    def assemble_residual(self) -> None:
+        """Assemble F at the current ``u`` (contact added; ghosts updated)."""
+        with self.F.localForm() as loc:
+            loc.set(0.0)
+        fem_petsc.assemble_vector(self.F, self.F_form)
+        self.F.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        if self.contact is not None:
+            self.contact.add_residual(self.F)
+            self.F.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def assemble_tangent(self) -> None:
+        """Assemble K at the current ``u`` (without contact: see :meth:`contact_tangent`)."""
+        self.K.zeroEntries()
+        fem_petsc.assemble_matrix(self.K, self.J_form)
+        self.K.assemble()
+
+    def contact_tangent(self) -> PETSc.Mat:
+        """A new matrix of the contact tangent (N/m) at the current state (caller destroys it)."""
+        return self.contact.jacobian_matrix(self.K)
+
+    def free_values(self) -> np.ndarray:
+        """The displacement DOFs of the free owned nodes, in the layout's order (m)."""
+        return self.u.x.array.reshape(-1, 3)[self.layout.free_nodes].ravel()
+
+    def set_displacement(
+        self,
+        free: np.ndarray,
+        bodies: Sequence[RigidBody],
+        phi: np.ndarray,
+        linear_ties: bool,
+    ) -> None:
+        """Set ``u``: ``free`` on the free nodes, zero on fixed ones, tied ones from their body.
+
+        A tied node follows ``t + R (X - X_ref) - (X - X_ref)``; with ``linear_ties``
+        ``t + φ × (X - X_ref)`` (φ the body's total rotation vector, rad). Ghosts updated.
+        """
+        lay = self.layout
+        u = self.u.x.array.reshape(-1, 3)
+        u[lay.free_nodes] = free.reshape(-1, 3)
+        u[lay.fixed_all] = 0.0
+        for b, nodes in enumerate(lay.tied_nodes):
+            body = bodies[b]
+            d = lay.X[nodes] - body.reference_point
+            if linear_ties:
+                u[nodes] = body.translation + np.cross(phi[b], d)
+            else:
+                u[nodes] = body.translation + d @ body.rotation.T - d
+        self.u.x.scatter_forward()
+
+    def reaction(self, surface: str, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``."""
+        point = np.zeros(3) if point is None else np.asarray(point, dtype=float)
+        self.assemble_residual()
+        owned = self.layout.fixed_owned[surface]
+        f = self.F.array_r.reshape(-1, 3)[owned]
+        x = self.layout.X[owned] + self.u.x.array.reshape(-1, 3)[owned]
+        local = np.r_[f.sum(axis=0), np.cross(x - point, f).sum(axis=0)]
+        total = self.layout.comm.allreduce(local, op=MPI.SUM)
+        return total[:3], total[3:]
+
+    def tied_positions(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """Reference and current positions (m) of the nodes tied to body b, on every rank."""
+        owned = self.layout.tied_owned[b]
+        X = self.layout.X[owned]
+        x = X + self.u.x.array.reshape(-1, 3)[owned]
+        Xs = self.layout.comm.allgather(X)
+        xs = self.layout.comm.allgather(x)
+        return np.vstack(Xs), np.vstack(xs)
+
+    def destroy(self) -> None:
+        """Free the PETSc objects."""
+        for obj in (self.K, self.F):
+            obj.destroy()

@@ -1,0 +1,346 @@
+"""The reduced nonlinear problem of a :class:`RigidSystem`: its residual and Jacobian.
+
+Maps a reduced vector to the state (bodies' motions, FE displacement) and back, and evaluates
+``r = Pᵀ F + r_rigid`` and ``J = Pᵀ K P + (rigid tangent)`` there: the SNES callbacks, apart
+from the driver that runs the SNES and from the layout and terms they combine.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from petsc4py import PETSc
+
+from shoulder_fem.engine.rigid_system.bodies import BodyBalance, RigidBody, Tie
+from shoulder_fem.engine.rigid_system.deformable import DeformablePart
+from shoulder_fem.engine.rigid_system.dynamics import StepState
+from shoulder_fem.engine.rigid_system.layout import ReducedLayout
+from shoulder_fem.engine.rigid_system.terms import (
+    RigidTerms,
+    SpringEnd,
+    end_states,
+    external_loads,
+    rigid_terms,
+    spring_load_on,
+    spring_terms,
+    tie_loads,
+)
+from shoulder_fem.engine.so3 import exp_so3, log_so3
+from shoulder_fem.engine.solver import SolveStats
+from shoulder_fem.engine.springs import Spring, spring_response
+
+__all__ = ["ReducedProblem", "RigidSolveStats", "timed"]
+
+
+@contextlib.contextmanager
+def timed(stats: SolveStats, name: str) -> Iterator[None]:
+    """Add the wall time of the enclosed block to ``stats.<name>`` (s), even if it raises."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        setattr(stats, name, getattr(stats, name) + time.perf_counter() - t0)
+
+
+@dataclass
+class RigidSolveStats(SolveStats):
+    """:class:`SolveStats` plus the residual-norm history of every solve and where the time went.
+
+    Wall seconds of this rank: ``snes_s`` in the Newton solves in all, ``residual_s`` and
+    ``jacobian_s`` in their residual and Jacobian evaluations (contact included); the rest of
+    ``snes_s`` is the linear solves (factorizations). Within ``jacobian_s``: ``fe_assembly_s``
+    (the FE residual and matrix) and ``reduction_s`` (the products Pᵀ K P of the FE and contact
+    matrices and their merge).
+    """
+
+    residual_histories: list[list[float]] = field(default_factory=list)
+    snes_s: float = 0.0
+    residual_s: float = 0.0
+    jacobian_s: float = 0.0
+    fe_assembly_s: float = 0.0
+    reduction_s: float = 0.0
+
+
+class ReducedProblem:
+    """Residual and Jacobian of the reduced unknowns (see :class:`ReducedLayout`).
+
+    Owns each body's rotation as ``R = exp(hat φ) R₀``: at the end of every converged solve
+    (:meth:`commit`) ``R₀ ← R`` and ``φ ← 0``, so rotations are composed on SO(3) and angles
+    are never added across solves (with ``linear_ties`` φ is the total rotation vector and R₀
+    stays the identity). Prescribed bodies take their six DOFs from
+    :meth:`RigidBody.prescribe`; their rows and columns of the Jacobian become the identity and
+    their residual rows zero (Dirichlet-like).
+
+    Args:
+        bodies: The rigid bodies (updated in place from the reduced vector).
+        springs: The springs; ``ends`` their ends resolved to ``layout`` (2 per spring).
+        ties: Which surface follows which body.
+        layout: The reduced layout.
+        ends: The springs' ends (:meth:`ReducedLayout.spring_end`).
+        fe: The deformable body, or ``None``.
+        step_state: The dynamic step being solved (shared with the driver).
+        stats: Where the callbacks' wall times and factorizations are counted.
+        linear_ties: Small-rotation kinematics of the tied nodes (static only).
+    """
+
+    def __init__(
+        self,
+        bodies: Sequence[RigidBody],
+        springs: Sequence[Spring],
+        ties: Sequence[Tie],
+        layout: ReducedLayout,
+        ends: Sequence[SpringEnd],
+        fe: DeformablePart | None,
+        step_state: StepState,
+        stats: RigidSolveStats,
+        linear_ties: bool,
+    ) -> None:
+        self.bodies, self.springs, self.ties = bodies, springs, ties
+        self.layout, self.ends, self.fe = layout, list(ends), fe
+        self.step_state, self.stats, self.linear_ties = step_state, stats, linear_ties
+        self.comm = layout.comm
+        self.contact_keys = np.zeros(0, dtype=np.int64)
+        self.R0 = [b.rotation.copy() for b in bodies]
+        self.phi = np.zeros((len(bodies), 3))
+        self.x = PETSc.Vec().createMPI((layout.n_local, layout.n_global), comm=self.comm)
+        self.r = self.x.duplicate()
+        #: The prolongation P and the product Pᵀ K P (FE only).
+        self.P: PETSc.Mat | None = None
+        self.C: PETSc.Mat | None = None
+        if fe is not None:
+            self.P = layout.create_prolongation(bodies, self.phi, linear_ties)
+        self.J = self._create_jacobian()
+
+    # ---- state <-> reduced vector -----------------------------------------------------------
+    def x_from_state(self, targets: bool = True) -> PETSc.Vec:
+        """Reduced vector of the current state (φ = 0, or the prescribed increment).
+
+        During a dynamic step the inertial bodies that carry no tied surface start from the
+        predictor θ = h Ω_n, x_G = x_n + h v_n + h² F_n/(2m); a body with tied nodes starts
+        from the state at t_n (moving its tied nodes alone would distort the elements next to
+        them). ``targets=False``: the current state only.
+        """
+        tied = {t.body for t in self.ties}
+        lay, steps = self.layout, self.step_state
+        x = self.x
+        arr = x.array
+        if self.fe is not None:
+            arr[: lay.n_free_local] = self.fe.free_values()
+        if self.comm.rank == 0:
+            for b, body in enumerate(self.bodies):
+                t, phi = body.translation, np.zeros(3)
+                if self.linear_ties:
+                    phi = self.phi[b].copy()  # the total rotation vector (R0 = I)
+                if targets and body.prescribed and body.target is not None:
+                    t = body.target[0]
+                    phi = log_so3(body.target[1] @ self.R0[b].T)
+                elif (
+                    targets
+                    and steps.dt is not None
+                    and b in steps.inertial(self.bodies)
+                    and body.name not in tied
+                ):
+                    t, phi = steps.predictor(b, body)
+                k = lay.n_free_local + 6 * b
+                arr[k : k + 3], arr[k + 3 : k + 6] = t, phi
+        return x
+
+    def update_state(self, x: PETSc.Vec) -> None:
+        """Bodies and the FE displacement from the reduced vector ``x`` (collective)."""
+        arr = x.array_r
+        nb = len(self.bodies)
+        n_free = self.layout.n_free_local
+        rigid = arr[n_free:].copy() if self.comm.rank == 0 else None
+        rigid = self.comm.bcast(rigid, root=0).reshape(nb, 6) if nb else np.zeros((0, 6))
+        for b, body in enumerate(self.bodies):
+            body.translation = rigid[b, :3].copy()
+            self.phi[b] = rigid[b, 3:]
+            body.rotation = exp_so3(self.phi[b]) @ self.R0[b]
+        if self.fe is not None:
+            self.fe.set_displacement(arr[:n_free], self.bodies, self.phi, self.linear_ties)
+
+    def commit(self) -> None:
+        """Take the current rotations as the new R₀ (φ ← 0), unless ``linear_ties``."""
+        if self.linear_ties:
+            return  # φ is the total rotation vector, R0 stays the identity
+        for b, body in enumerate(self.bodies):
+            self.R0[b] = body.rotation.copy()
+            self.phi[b] = 0.0
+
+    def set_rotation(self, b: int, R: np.ndarray) -> None:
+        """Body b's rotation is ``R`` now: R₀ ← R, φ ← 0."""
+        self.R0[b], self.phi[b] = R.copy(), 0.0
+
+    # ---- loads at the current state ----------------------------------------------------------
+    def end_states(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(current position m, lever m) of every spring end (collective)."""
+        u = None if self.fe is None else self.fe.u
+        return end_states(self.ends, self.bodies, u, self.comm)
+
+    def tie_loads(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per body Σ f_i (N), Σ r_i × f_i (N·m), Σ hat(f_i) hat(r_i) of the assembled F."""
+        F = None if self.fe is None else self.fe.F
+        return tie_loads(self.bodies, self.layout.X, self.layout.tied_owned, F, self.comm)
+
+    def external_loads(self) -> np.ndarray:
+        """Per body, the total external force F (N) and moment about G (N·m) (collective).
+
+        External: ties (minus the FE residual at the tied nodes), springs and applied loads,
+        at the current state (the FE residual is assembled here).
+        """
+        nb = len(self.bodies)
+        if self.fe is not None:
+            self.fe.assemble_residual()
+        tie_f, tie_m, _ = self.tie_loads()
+        res, _, _, _ = spring_terms(self.springs, self.ends, self.end_states(), nb)
+        return external_loads(self.bodies, tie_f, tie_m, res)
+
+    def rigid_terms(self, with_tangent: bool) -> RigidTerms:
+        """The rigid rows at the current state (:func:`terms.rigid_terms`; F assembled)."""
+        nb = len(self.bodies)
+        springs = spring_terms(self.springs, self.ends, self.end_states(), nb)
+        zeros = np.zeros((nb, 3))
+        if with_tangent and not self.linear_ties:
+            _, tie_m, G = self.tie_loads()
+        else:
+            tie_m, G = zeros, np.zeros((nb, 3, 3))
+        steps, inertia = self.step_state, {}
+        if steps.dt is not None:
+            for b in steps.inertial(self.bodies):
+                inertia[b] = steps.rows(b, self.bodies[b], self.phi[b])
+        return rigid_terms(self.bodies, springs, tie_m, G, inertia, self.phi, self.linear_ties)
+
+    def balance(self, b: int, last_inertia: np.ndarray | None) -> BodyBalance:
+        """Forces and moments on body b at the current state (collective; F assembled here).
+
+        ``last_inertia``: the inertia rows of the last dynamic step (:class:`StepState`).
+        """
+        body = self.bodies[b]
+        if self.fe is not None:
+            self.fe.assemble_residual()
+        tie_f, tie_m, _ = self.tie_loads()
+        spring_f, spring_m = spring_load_on(b, self.springs, self.ends, self.end_states())
+        inertia = np.zeros(6) if last_inertia is None else -last_inertia[b]
+        return BodyBalance(
+            -tie_f[b],
+            -tie_m[b],
+            spring_f,
+            spring_m,
+            body.force.copy(),
+            body.moment.copy(),
+            inertia[:3].copy(),
+            inertia[3:].copy(),
+        )
+
+    def spring_forces(self) -> dict[str, dict[str, float]]:
+        """Per spring: length (m), tension (N, positive when stretched) (collective)."""
+        states = self.end_states()
+        out = {}
+        for j, spring in enumerate(self.springs):
+            resp = spring_response(spring, states[2 * j][0], states[2 * j + 1][0])
+            out[spring.name] = {"length": resp.length, "tension": resp.tension}
+        return out
+
+    # ---- SNES callbacks -------------------------------------------------------------------
+    def residual(self, snes: PETSc.SNES, x: PETSc.Vec, r: PETSc.Vec) -> None:
+        """SNES residual: r = Pᵀ F + r_rigid at ``x`` (N; N·m); zero rows of prescribed bodies."""
+        with timed(self.stats, "residual_s"):
+            self._residual(x, r)
+
+    def _residual(self, x: PETSc.Vec, r: PETSc.Vec) -> None:
+        self.update_state(x)
+        lay = self.layout
+        if self.fe is not None:
+            self.fe.assemble_residual()
+            lay.fill_prolongation(self.P, self.bodies, self.phi, self.linear_ties)
+            self.P.multTranspose(self.fe.F, r)
+        else:
+            r.set(0.0)
+        terms = self.rigid_terms(with_tangent=False)
+        # Every rank touches the array (PETSc bumps the vector's state, which must stay the same
+        # on all ranks or cached norms differ and the ranks fall out of step).
+        arr = r.array
+        for i, vec in terms.node_residual:
+            _, _, _, owner, _, col0 = self.ends[i]
+            if self.comm.rank == owner:
+                arr[col0 - lay.start : col0 - lay.start + 3] += vec
+        if self.comm.rank == 0:
+            arr[lay.n_free_local :] += terms.residual
+            for b, body in enumerate(self.bodies):
+                if body.prescribed:
+                    k = lay.n_free_local + 6 * b
+                    arr[k : k + 6] = 0.0
+
+    def jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, J: PETSc.Mat, P: PETSc.Mat) -> None:
+        """SNES Jacobian: J = Pᵀ K P + rigid tangent at ``x``; prescribed bodies' rows identity."""
+        with timed(self.stats, "jacobian_s"):
+            self._jacobian(x, J)
+
+    def _jacobian(self, x: PETSc.Vec, J: PETSc.Mat) -> None:
+        self.update_state(x)
+        J.zeroEntries()
+        if self.fe is not None:
+            self._add_fe_tangent(J)
+        terms = self.rigid_terms(with_tangent=True)
+        if self.comm.rank == 0 and len(self.bodies):
+            rigid = self.layout.rigid_range(len(self.bodies))
+            J.setValues(rigid, rigid, terms.tangent.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+        self.layout.add_node_blocks(J, self.ends, terms.node_tangent, terms.T)
+        J.assemble()
+        J.zeroRowsColumns(self.layout.prescribed_rows(self.bodies), 1.0)
+        self.stats.factorizations += 1
+
+    def _add_fe_tangent(self, J: PETSc.Mat) -> None:
+        """Assemble F and K, add Pᵀ K P and the contact's Pᵀ K_c P to ``J``."""
+        fe = self.fe
+        with timed(self.stats, "fe_assembly_s"):
+            fe.assemble_residual()
+            fe.assemble_tangent()
+        with timed(self.stats, "reduction_s"):
+            self.layout.fill_prolongation(self.P, self.bodies, self.phi, self.linear_ties)
+            fe.K.PtAP(self.P, self.C)
+            J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        if fe.contact is not None:
+            from shoulder_fem.engine.contact import add_to_pattern
+
+            Kc = fe.contact_tangent()
+            with timed(self.stats, "reduction_s"):
+                Cc = Kc.PtAP(self.P)
+                self.contact_keys = add_to_pattern(J, Cc, self.contact_keys, self.comm)
+            Kc.destroy()
+            Cc.destroy()
+
+    # ---- the Jacobian's pattern ---------------------------------------------------------------
+    def _create_jacobian(self) -> PETSc.Mat:
+        comm, nb, lay = self.comm, len(self.bodies), self.layout
+        rigid = lay.rigid_range(nb)
+        if self.fe is not None:
+            self.update_state(self.x_from_state())
+            self.fe.assemble_tangent()
+            self.C = self.fe.K.PtAP(self.P)
+            J = self.C.duplicate(copy=True)
+            J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        else:
+            J = PETSc.Mat().createAIJ(((lay.n_local, lay.n_global),) * 2, comm=comm)
+            J.setPreallocationNNZ((6 * nb, 0))
+        if comm.rank == 0 and nb:
+            J.setValues(rigid, rigid, np.zeros((6 * nb, 6 * nb)), addv=PETSc.InsertMode.ADD)
+        if any(e.kind == "node" for e in self.ends):
+            terms = self.rigid_terms(with_tangent=True)  # the blocks' positions
+            zero = [(i, k, 0.0 * block) for i, k, block in terms.node_tangent]
+            self.layout.add_node_blocks(J, self.ends, zero, terms.T)
+        J.assemble()
+        J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        return J
+
+    def destroy(self) -> None:
+        """Free the PETSc objects."""
+        objs = [self.J, self.x, self.r]
+        if self.fe is not None:
+            objs += [self.P, self.C]
+        for obj in objs:
+            obj.destroy()

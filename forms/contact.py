@@ -1,6 +1,6 @@
 """Contact against analytic rigid surfaces as UFL forms (penalty), for small models and checks.
 
-The general contact code (:mod:`shoulder_fem.contact`) pairs slave quadrature points with master
+The general contact code (:mod:`shoulder_fem.engine.contact`) pairs slave quadrature points with master
 facets found by a spatial search, which UFL cannot express. Against an analytic rigid surface
 the gap is a closed-form function of the current position x = X + u, and the penalty contact
 power is an ordinary boundary integral:
@@ -10,7 +10,7 @@ power is an ordinary boundary integral:
 with g the signed distance to the surface (negative when penetrating) and n its outward unit
 normal (pointing out of the rigid solid, towards the slave). ``ufl.derivative`` gives the exact
 tangent, curvature term included. The tests use these forms to check the numpy assembly of
-:mod:`shoulder_fem.contact` entry by entry.
+:mod:`shoulder_fem.engine.contact` entry by entry.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Dynamic rigid bodies in the reduced system: analytic motions, conservation, convergence order,
 exact tangent, Newton's rate, FE coupling, serial vs ``mpirun -n 2``, bad input.
 
-The scheme (:mod:`shoulder_fem.rigid_bodies`, module docstring) is Simo–Wong's energy–momentum
+The scheme (:mod:`shoulder_fem.engine.rigid_system.dynamics`) is Simo–Wong's energy–momentum
 algorithm with trapezoidal loads. Every reference number here is independent of it: closed-form
 motions (2π√(m/k), M t²/(2I)), conserved quantities of the exact dynamics, a high-accuracy ODE
 solution (scipy DOP853), the statically measured stiffness of the FE block, and rigid.py's own

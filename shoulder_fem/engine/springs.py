@@ -10,7 +10,7 @@ with stiffness k (N/m) and rest length L0 (m). A tension-only spring carries no 
 configuration (m); on a rigid body they follow its motion, on the ground they stay put.
 
 This module is pure numpy: :func:`spring_response` returns the force and the consistent tangent
-of one spring at given end positions; :class:`shoulder_fem.rigid_bodies.RigidSystem` maps them
+of one spring at given end positions; :class:`shoulder_fem.engine.rigid_system.RigidSystem` maps them
 onto the bodies' six DOFs.
 """
 

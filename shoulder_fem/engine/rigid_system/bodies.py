@@ -37,7 +37,7 @@ class RigidBody:
         centre: Reference position of the centre of mass X_G (m); default ``reference_point``.
         velocity: Velocity of the centre of mass, inertial frame (m/s) (state, dynamics).
         omega: **Body-frame** angular velocity Ω (rad/s), ``Ṙ = R hat(Ω)``, as in
-            :mod:`shoulder_fem.rigid` (state, dynamics).
+            :mod:`shoulder_fem.engine.rigid` (state, dynamics).
 
     Raises:
         ValueError: A mass that is not finite and > 0, an inertia that is not a finite
@@ -129,7 +129,7 @@ class RigidBody:
         )
 
     def state(self, time: float = 0.0) -> RigidState:
-        """The body's dynamic state as a :class:`shoulder_fem.rigid.RigidState` (centre G)."""
+        """The body's dynamic state as a :class:`shoulder_fem.engine.rigid.RigidState` (centre G)."""
         return RigidState(time, self.centre_position(), self.velocity, self.rotation, self.omega)
 
     def prescribe(self, translation: np.ndarray, rotation: np.ndarray) -> None:

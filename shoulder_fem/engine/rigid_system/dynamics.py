@@ -26,7 +26,7 @@ class StepState:
     (:meth:`RigidBody.set_mass_properties`, e.g. from :func:`mass_properties`) is integrated in
     time; the deformable body stays quasi-static (its residual carries no inertia), massless
     bodies stay quasi-static too, and prescribed bodies follow their prescription. The scheme is
-    the Simo–Wong energy–momentum algorithm of :class:`shoulder_fem.rigid.NewtonEuler` with the
+    the Simo–Wong energy–momentum algorithm of :class:`shoulder_fem.engine.rigid.NewtonEuler` with the
     loads averaged over the step (trapezoidal rule) instead of sampled at the mid-step state, so
     that the quasi-static FE equilibrium and the tie forces are those of the end of the step.
     From state n (centre x_n, velocity v_n, rotation R_n, body angular velocity Ω_n, spatial

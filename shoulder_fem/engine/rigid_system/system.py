@@ -41,7 +41,7 @@ def create_snes(
 ) -> tuple[PETSc.SNES, str]:
     """A SNES on ``problem``'s residual and Jacobian, options under ``prefix``; its line search.
 
-    ``options`` (PETSc options) go over :func:`shoulder_fem.solver.default_snes_options`.
+    ``options`` (PETSc options) go over :func:`shoulder_fem.engine.solver.default_snes_options`.
     """
     # Rotating a tied face by a finite angle makes the first Newton iterate of a nearly
     # incompressible body (linearised rotation of the free nodes) far worse than the start:
@@ -97,7 +97,7 @@ class RigidSystem:
     Args:
         bodies: The rigid bodies (their states are updated in place by :meth:`solve` and
             :meth:`step`).
-        springs: Springs between bodies and the ground (:mod:`shoulder_fem.springs`).
+        springs: Springs between bodies and the ground (:mod:`shoulder_fem.engine.springs`).
         u: Displacement of the deformable body (m), a 3D vector Lagrange function; ``None`` for
             a system of rigid bodies and springs only.
         residual: UFL residual F(u; w) of the deformable body (N), required with ``u``.
@@ -111,7 +111,7 @@ class RigidSystem:
             end is attached to the FE node at its point (which must be a node); on a tied node
             it moves with that rigid body, on a fixed node it is a ground point.
         name: Short name; the SNES options prefix is ``<name><n>_``.
-        options: PETSc options over :func:`shoulder_fem.solver.default_snes_options`.
+        options: PETSc options over :func:`shoulder_fem.engine.solver.default_snes_options`.
         form_compiler_params: Passed to ``dolfinx.fem.form``.
         dynamic: Enable :meth:`step`: bodies with a mass (not prescribed) carry inertia; such
             a body needs nothing to hold it. ``False`` (default): static, masses are ignored.
@@ -161,7 +161,7 @@ class RigidSystem:
             raise ValueError("RigidSystem: linear_ties is for static systems")
         if self.linear_ties and any(not np.allclose(b.rotation, np.eye(3)) for b in self.bodies):
             raise ValueError("RigidSystem: linear_ties needs bodies that start unrotated")
-        #: Contact terms (:class:`shoulder_fem.contact.Contact` on ``u``, built without bcs):
+        #: Contact terms (:class:`shoulder_fem.engine.contact.Contact` on ``u``, built without bcs):
         #: added to the FE residual and tangent before the reduction, so that a master surface
         #: whose nodes are tied to a rigid body is a rigid contact surface.
         self.contact = contact

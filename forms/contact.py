@@ -1,9 +1,9 @@
 """Contact against analytic rigid surfaces as UFL forms (penalty), for small models and checks.
 
-The general contact code (:mod:`shoulder_fem.engine.contact`) pairs slave quadrature points with master
-facets found by a spatial search, which UFL cannot express. Against an analytic rigid surface
-the gap is a closed-form function of the current position x = X + u, and the penalty contact
-power is an ordinary boundary integral:
+The general contact code (:mod:`shoulder_fem.engine.contact`) pairs slave quadrature points
+with master facets found by a spatial search, which UFL cannot express. Against an analytic
+rigid surface the gap is a closed-form function of the current position x = X + u, and the
+penalty contact power is an ordinary boundary integral:
 
     P_c(u; w) = - int_Gs  eps <-g(x)>  n(x) . w  dA,        <a> = max(a, 0),
 

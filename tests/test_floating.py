@@ -1,8 +1,8 @@
 """The coupled floating-frame solver (eq. 14) on the tumbling body, and the decoupled method.
 
 Tolerances, derived from the integrator (Simo–Tarnow energy–momentum midpoint rule, see
-``shoulder_fem/engine/floating.py``): energy, linear and angular momentum are conserved exactly by the
-discrete equations, so what remains is the Newton residual left at each step. Newton stops at
+``shoulder_fem/engine/floating.py``): energy, linear and angular momentum are conserved exactly
+by the discrete equations, so what remains is the Newton residual left at each step. Newton stops at
 |r| <= atol ≈ 1e-11 (2 m ℓ/Δt²) ≈ 4e-9 N (coarse box, Δt = 1.5 ms); per step that changes
 L by at most Δt ℓ √N |r| ≈ 1.5e-3 · 0.027 · 8 · 4e-9 ≈ 1.3e-12 kg m²/s, about 2e-9 of
 |L| = 7.2e-4 kg m²/s, so ≤ 5e-7 over 233 steps in the worst case (errors of random sign give

@@ -1,4 +1,4 @@
-"""Tests for shoulder_fem.engine.so3 and shoulder_fem.engine.rigid: SO(3) maps, the Newton–Euler integrator and SpinUp.
+"""Tests for engine.so3 and engine.rigid: SO(3) maps, the Newton–Euler integrator, SpinUp.
 
 Pure numpy, a few seconds in all; every test is cheap enough to repeat on each rank under
 ``mpirun -n 2``.

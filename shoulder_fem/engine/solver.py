@@ -177,8 +177,8 @@ class NonlinearSolver:
             Krylov iterations or failed. For operators that drift slowly (a Coriolis term).
         near_nullspace: attach the rigid-body modes (done anyway when ``pc_type`` is gamg).
         form_compiler_params: passed to ``dolfinx.fem.form`` (e.g. quadrature_degree).
-        contact: a :class:`shoulder_fem.engine.contact.Contact` on ``u``: its forces are added to every
-            residual and its tangent to every Jacobian (built with the same ``bcs``).
+        contact: a :class:`~shoulder_fem.engine.contact.Contact` on ``u``: its forces are added
+            to every residual and its tangent to every Jacobian (built with the same ``bcs``).
     """
 
     def __init__(

@@ -10,8 +10,8 @@ with stiffness k (N/m) and rest length L0 (m). A tension-only spring carries no 
 configuration (m); on a rigid body they follow its motion, on the ground they stay put.
 
 This module is pure numpy: :func:`spring_response` returns the force and the consistent tangent
-of one spring at given end positions; :class:`shoulder_fem.engine.rigid_system.RigidSystem` maps them
-onto the bodies' six DOFs.
+of one spring at given end positions; :class:`~shoulder_fem.engine.rigid_system.RigidSystem`
+maps them onto the bodies' six DOFs.
 """
 
 from __future__ import annotations

@@ -129,7 +129,7 @@ class RigidBody:
         )
 
     def state(self, time: float = 0.0) -> RigidState:
-        """The body's dynamic state as a :class:`shoulder_fem.engine.rigid.RigidState` (centre G)."""
+        """The body's dynamic state as a :class:`~shoulder_fem.engine.rigid.RigidState` (at G)."""
         return RigidState(time, self.centre_position(), self.velocity, self.rotation, self.omega)
 
     def prescribe(self, translation: np.ndarray, rotation: np.ndarray) -> None:

@@ -26,11 +26,11 @@ class StepState:
     (:meth:`RigidBody.set_mass_properties`, e.g. from :func:`mass_properties`) is integrated in
     time; the deformable body stays quasi-static (its residual carries no inertia), massless
     bodies stay quasi-static too, and prescribed bodies follow their prescription. The scheme is
-    the Simo–Wong energy–momentum algorithm of :class:`shoulder_fem.engine.rigid.NewtonEuler` with the
-    loads averaged over the step (trapezoidal rule) instead of sampled at the mid-step state, so
-    that the quasi-static FE equilibrium and the tie forces are those of the end of the step.
-    From state n (centre x_n, velocity v_n, rotation R_n, body angular velocity Ω_n, spatial
-    angular momentum L_n = R_n I_G Ω_n, loads F_n and M_n about G) to n+1, with
+    the Simo–Wong energy–momentum algorithm of :class:`~shoulder_fem.engine.rigid.NewtonEuler`
+    with the loads averaged over the step (trapezoidal rule) instead of sampled at the mid-step
+    state, so that the quasi-static FE equilibrium and the tie forces are those of the end of
+    the step. From state n (centre x_n, velocity v_n, rotation R_n, body angular velocity Ω_n,
+    spatial angular momentum L_n = R_n I_G Ω_n, loads F_n and M_n about G) to n+1, with
     R_{n+1} = R_n exp(hat θ) (θ = R_nᵀ φ: body increment; the reduced DOFs are unchanged)::
 
         m (v_{n+1} - v_n) = h (F_n + F_{n+1}) / 2,      x_{n+1} = x_n + h (v_n + v_{n+1}) / 2,

@@ -20,11 +20,15 @@ import numpy as np
 import pytest
 import ufl
 from mpi4py import MPI
+from scipy.spatial.transform import Rotation
 
 from shoulder_fem import api
 from shoulder_fem.engine.so3 import hat
+from shoulder_fem.families.shoulder import geometry as SG
+from shoulder_fem.families.shoulder import interactions as SI
 from shoulder_fem.families.shoulder import model as SH
 from shoulder_fem.families.shoulder import report as shoulder_report
+from shoulder_fem.io import ct
 from shoulder_fem.meshes import shoulder as MS
 from shoulder_fem.scene import load_scene
 
@@ -141,22 +145,22 @@ def test_swing_and_twist_by_hand():
     """Twist and swing of known rotations: about the axis (pure twist), about a perpendicular
     axis (pure swing), and their product (the axis turns by the swing only)."""
     axis = np.array([0.0, 0.0, 1.0])
-    twist = SH.Rotation.from_rotvec(np.radians(40.0) * axis).as_matrix()
-    swing = SH.Rotation.from_rotvec(np.radians(25.0) * np.array([1.0, 0.0, 0.0])).as_matrix()
-    assert math.degrees(SH.twist_angle(twist, axis)) == pytest.approx(40.0)
-    assert math.degrees(SH.swing_angle(twist, axis)) == pytest.approx(0.0, abs=1e-6)
-    assert math.degrees(SH.twist_angle(swing, axis)) == pytest.approx(0.0, abs=1e-12)
-    assert math.degrees(SH.swing_angle(swing, axis)) == pytest.approx(25.0)
+    twist = Rotation.from_rotvec(np.radians(40.0) * axis).as_matrix()
+    swing = Rotation.from_rotvec(np.radians(25.0) * np.array([1.0, 0.0, 0.0])).as_matrix()
+    assert math.degrees(SG.twist_angle(twist, axis)) == pytest.approx(40.0)
+    assert math.degrees(SG.swing_angle(twist, axis)) == pytest.approx(0.0, abs=1e-6)
+    assert math.degrees(SG.twist_angle(swing, axis)) == pytest.approx(0.0, abs=1e-12)
+    assert math.degrees(SG.swing_angle(swing, axis)) == pytest.approx(25.0)
     both = swing @ twist  # twist first, then swing: the swing-twist decomposition
-    assert math.degrees(SH.twist_angle(both, axis)) == pytest.approx(40.0)
-    assert math.degrees(SH.swing_angle(both, axis)) == pytest.approx(25.0)
+    assert math.degrees(SG.twist_angle(both, axis)) == pytest.approx(40.0)
+    assert math.degrees(SG.swing_angle(both, axis)) == pytest.approx(25.0)
 
 
 def test_cap_angles_by_hand():
     """Angles from a cap's axis seen from its centre: on the axis, at 45 and 90 deg, behind."""
     centre, axis = np.array([1.0, 2.0, 3.0]), np.array([0.0, 1.0, 0.0])
     X = centre + np.array([[0, 2, 0], [1, 1, 0], [0, 0, 3], [0, -1, 0]], dtype=float)
-    assert np.degrees(SH.cap_angles(X, centre, axis)) == pytest.approx([0, 45, 90, 180])
+    assert np.degrees(SG.cap_angles(X, centre, axis)) == pytest.approx([0, 45, 90, 180])
 
 
 def test_swing_and_the_contact_on_the_humeral_cartilage(study):
@@ -234,12 +238,16 @@ def test_scapula_suspension_stiffness_is_symmetric_positive_definite():
     values = scene.values()
     geometry = MS.geometry_from_values(values)
     sm = MS.build_shoulder_mesh(comm, geometry, scene.level("coarse"), "scapula")
-    ref = SH.patch_centroid(sm.mesh, sm.facet_tags, MS.MARKERS["glenoid_cartilage_bone"].id)
+    ref = SG.patch_centroid(sm.mesh, sm.facet_tags, MS.MARKERS["glenoid_cartilage_bone"].id)
     K = np.zeros((6, 6))
-    springs = [sp for sp in SH.spring_layout(values) if sp["bone"] == "scapula"]
+    springs = [
+        sp
+        for sp in SI.spring_layout(SH.ShoulderParameters.from_values(values))
+        if sp["bone"] == "scapula"
+    ]
     assert len(springs) == 21
     for sp in springs:
-        c = SH.patch_centroid(sm.mesh, sm.facet_tags, MS.MARKERS[sp["name"]].id)
+        c = SG.patch_centroid(sm.mesh, sm.facet_tags, MS.MARKERS[sp["name"]].id)
         B = np.hstack([np.eye(3), -hat(c - ref)])
         n = sp["direction"]
         K += sp["stiffness"] * B.T @ np.outer(n, n) @ B
@@ -254,15 +262,15 @@ def test_horizontal_distal_elements_act_at_the_distal_section_centroid():
     centroid; every humerus element's coupled plate is the whole distal section."""
     scene = load_scene("shoulder-internal-rotation")
     paper = scene.with_overrides(["humerus_horizontal_stiffness=0N/mm"])
-    base = SH.spring_layout(paper.values())
+    base = SI.spring_layout(SH.ShoulderParameters.from_values(paper.values()))
     assert len(base) == 25 and all(sp["patch"] == sp["name"] for sp in base)
-    more = SH.spring_layout(scene.values())
+    more = SI.spring_layout(SH.ShoulderParameters.from_values(scene.values()))
     assert [sp["name"] for sp in more[:25]] == [sp["name"] for sp in base]
     extra = more[25:]
     assert len(more) == 27 and len({sp["name"] for sp in more}) == 27
-    assert [sp["patch"] for sp in extra] == [SH.DISTAL_SECTION] * 2
+    assert [sp["patch"] for sp in extra] == [SI.DISTAL_SECTION] * 2
     for sp in more:
-        assert sp["plate"] == (SH.DISTAL_SECTION if sp["bone"] == "humerus" else sp["patch"])
+        assert sp["plate"] == (SI.DISTAL_SECTION if sp["bone"] == "humerus" else sp["patch"])
     for sp in extra:
         assert sp["bone"] == "humerus" and sp["stiffness"] == pytest.approx(5000.0)
         assert sp["direction"][2] == 0.0 and np.linalg.norm(sp["direction"]) == pytest.approx(1)
@@ -285,7 +293,7 @@ def test_the_distal_section_centroid_is_on_the_shaft_axis():
             if variant == "deformable"
             else (sm.bone_surface, sm.bone_surface_tags)
         )
-        c = 1e3 * SH.surface_centroid(mesh, tags, SH.DISTAL_SECTION) - point_mm
+        c = 1e3 * SG.surface_centroid(mesh, tags, SI.DISTAL_SECTION) - point_mm
         off_axis = np.linalg.norm(c - np.dot(c, direction) * direction)
         # mm: on the axis by the patches' symmetry (measured 0.0005 mm, round-off of gmsh's
         # facets; the section is 22 mm across)
@@ -306,13 +314,13 @@ def test_modulus_factors_scale_each_bone_alone():
     assert values["scapula_modulus_factor"] == values["humerus_modulus_factor"] == 1.0
     geometry = MS.geometry_from_values(values)
     sm = MS.build_shoulder_mesh(comm, geometry, scene.level("coarse"), "deformable")
-    image = SH.ct.shoulder_phantom(geometry)
+    image = ct.shoulder_phantom(geometry)
     dx = ufl.Measure("dx", domain=sm.mesh, subdomain_data=sm.cell_tags)
     tags = (MS.SCAPULA.id, MS.HUMERUS.id, MS.MARKERS["glenoid_cartilage"].id)
 
     def integrals(scapula: float, humerus: float) -> np.ndarray:
         v = values | {"scapula_modulus_factor": scapula, "humerus_modulus_factor": humerus}
-        _, E = SH.bone_fields(sm.mesh, sm.cell_tags, image, v)
+        _, E = SI.bone_fields(sm.mesh, sm.cell_tags, image, SH.ShoulderParameters.from_values(v))
         return np.array(
             [comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(E * dx(t)))) for t in tags]
         )
@@ -461,7 +469,7 @@ def test_muscle_contact_keeps_the_infraspinatus_out_of_the_humeral_head(tmp_path
     assert np.all(pen < 2e-3) and force[-1] > force[1] > 0  # the cuff presses on the head
     model = SH.build(scene, "coarse", MPI.COMM_SELF, "decoupled")
     sm = model.meshes["rigid-bone"]
-    ft = SH._head_tags(model, sm.mesh, sm.facet_tags)
+    ft = SH.head_tags(model, sm.mesh, sm.facet_tags)
     r_bone = model.geometry.subchondral_radius
     head = ft.find(S.HUMERUS_HEAD_SURFACE.id)
     mid = dolfinx.mesh.compute_midpoints(sm.mesh, 2, head)
@@ -476,7 +484,7 @@ def test_muscle_contact_keeps_the_infraspinatus_out_of_the_humeral_head(tmp_path
     # the humerus's rigid motion: best fit of the humeral cartilage's nodes (carried by it up
     # to the cartilage's strain, microns against millimetres)
     A, B = X[bond], X[bond] + U[bond]
-    R = SH.best_fit_rotation(A, B, MPI.COMM_SELF)
+    R = SG.best_fit_rotation(A, B, MPI.COMM_SELF)
     centre = B.mean(0) - R @ A.mean(0)  # the articular centre (the origin) moved
     nearest = np.linalg.norm(X[infra] + U[infra] - centre, axis=1).min()
     assert nearest > r_bone - sag - 2e-3, (nearest, r_bone, sag)

@@ -1,13 +1,9 @@
 """The ``shoulder`` family: the paper's glenohumeral internal rotation, coupled and decoupled."""
 
 from shoulder_fem.families.base import Family
-from shoulder_fem.families.shoulder.model import (
-    ShoulderModel,
-    build,
-    dofs,
-    run_coupled,
-    run_decoupled,
-)
+from shoulder_fem.families.shoulder.coupled import run_coupled
+from shoulder_fem.families.shoulder.decoupled import run_decoupled
+from shoulder_fem.families.shoulder.model import ShoulderModel, build, dofs
 from shoulder_fem.families.shoulder.report import bench_report
 
 __all__ = ["FAMILY", "ShoulderModel"]

@@ -1,0 +1,97 @@
+"""Method ``coupled``: the whole joint in one finite-strain problem, every body deformable.
+
+The bones are Saint Venant-Kirchhoff with E from the density image, the soft tissues as in
+:mod:`.interactions`; one Newton solve per step of :mod:`.stepping`. The spring plates and the
+actuator plate are rigid bodies tied to the mesh (:class:`~shoulder_fem.engine.rigid_system.
+RigidSystem`); the humerus's rotation is the best fit of its nodes' motion.
+"""
+
+from __future__ import annotations
+
+import dolfinx
+import numpy as np
+import ufl
+
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.shoulder.geometry import best_fit_rotation, patch_centroid
+from shoulder_fem.families.shoulder.interactions import (
+    bone_fields,
+    cauchy_stress,
+    joint_contact,
+    soft_tissue_residual,
+    spring_layout,
+    spring_plates,
+    surfaces,
+)
+from shoulder_fem.families.shoulder.measures import Probe, VonMises
+from shoulder_fem.families.shoulder.model import ShoulderModel, head_tags
+from shoulder_fem.families.shoulder.outputs import save_results, unknowns
+from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = ["run_coupled"]
+
+
+def run_coupled(model: ShoulderModel, run: RunContext) -> None:
+    """Method #1: every body deformable, finite strain (collective)."""
+    p = model.params
+    sm = model.meshes["deformable"]
+    mesh, ct_ = sm.mesh, sm.cell_tags
+    ft = head_tags(model, mesh, sm.facet_tags)
+    comm = mesh.comm
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+    u = dolfinx.fem.Function(V, name="displacement")
+    w = ufl.TestFunction(V)
+    dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
+    rho, E = bone_fields(mesh, ct_, model.image, p)
+    bone = materials.SaintVenantKirchhoff(E, materials.BONE_NU)
+    F = soft_tissue_residual(u, w, dx)
+    F += vp.internal_power_finite(bone, u, w, dx(S.HUMERUS.id))
+    F += vp.internal_power_finite(bone, u, w, dx(S.SCAPULA.id))
+    contact = joint_contact(V, u, ft, p)
+    bodies, ties, springs = spring_plates(mesh, ft, spring_layout(p), p.spring_length)
+    origin = patch_centroid(mesh, ft, S.MARKERS["subscapularis_origin"].id)
+    actuator = RigidBody("actuator", origin, prescribed=True)
+    bodies.append(actuator)
+    ties.append(Tie("actuator", "subscapularis_origin"))
+    system = RigidSystem(
+        bodies,
+        springs,
+        u=u,
+        residual=F,
+        surfaces=surfaces(ft, [t.surface for t in ties]),
+        ties=ties,
+        name="shoulder_coupled",
+        options=SNES_OPTIONS | dict(run.options or {}),
+        form_compiler_params=p.quadrature(),
+        contact=contact,
+    )
+    humerus_dofs = dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(S.HUMERUS.id))
+    humerus_dofs = humerus_dofs[humerus_dofs < V.dofmap.index_map.size_local]
+    X_h = V.tabulate_dof_coordinates()[humerus_dofs]
+
+    def rotation() -> np.ndarray:
+        x = X_h + u.x.array.reshape(-1, 3)[humerus_dofs]
+        return best_fit_rotation(X_h, x, comm)
+
+    stress_vm = VonMises(mesh, ct_, cauchy_stress(bone, u))
+    probe = Probe(u, ct_, ft, contact, p)
+    job = Stepping(
+        system=system,
+        contact=contact,
+        actuator=actuator,
+        rotation=rotation,
+        probe=probe,
+        u=u,
+        label="coupled",
+        stage="rotation",
+        stress=stress_vm,
+    )
+    data = run_steps(model, run, job)
+    run.recorder.extra("dofs_coupled", unknowns(system))
+    save_results(model, data, stress_vm, mesh, ft, run.fields.parent / "shoulder.npz")
+    probe.destroy()
+    system.destroy()

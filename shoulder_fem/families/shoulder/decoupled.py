@@ -1,0 +1,214 @@
+"""Method ``decoupled``, part 1 and the transfer to part 2.
+
+Part 1: the bones rigid (six DOFs each), the cartilages and muscles deformable, the same
+contact and springs as the coupled method, driven by :mod:`.stepping`. At each output angle it
+records the nodal forces that the glenoid cartilage and the supraspinatus and infraspinatus
+apply to the scapula, and the scapula's rigid motion (:class:`Transfer`); part 2
+(:mod:`.part2`) loads the elastic scapula with them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import dolfinx
+import numpy as np
+import ufl
+
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.springs import GROUND, Spring
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.shoulder.geometry import gather_rows, patch_centroid, surface_centroid
+from shoulder_fem.families.shoulder.interactions import (
+    joint_contact,
+    soft_tissue_residual,
+    spring_layout,
+    surfaces,
+)
+from shoulder_fem.families.shoulder.measures import Probe
+from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters, head_tags
+from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
+from shoulder_fem.families.shoulder.part2 import run_part2
+from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = ["HUMERUS_TIES", "SCAPULA_LOAD_SURFACES", "Transfer", "run_decoupled", "run_part1"]
+
+#: The scapula's surfaces loaded by part 1's soft tissues: their forces go to part 2.
+SCAPULA_LOAD_SURFACES = ("glenoid_cartilage_bone", "supraspinatus_origin", "infraspinatus_origin")
+#: The soft tissues' surfaces on the humerus, carried by the rigid humerus in part 1.
+HUMERUS_TIES = (
+    "humeral_cartilage_bone",
+    "subscapularis_insertion",
+    "supraspinatus_insertion",
+    "infraspinatus_insertion",
+)
+
+
+def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
+    """Method #2: part 1 (rigid bones), then part 2 (scapula, linear, floating frame)."""
+    layout = spring_layout(model.params)
+    data, transfer = run_part1(model, run, layout)
+    with run.monitor.stage("part2"):
+        stress_vm, mesh2, ft2 = run_part2(model, run, transfer, layout, data)
+    save_results(model, data, stress_vm, mesh2, ft2, run.fields.parent / "shoulder.npz")
+
+
+@dataclass
+class Transfer:
+    """Part 1's loads on the scapula and its rigid motion at each output angle.
+
+    Attributes:
+        reference: The scapula's reference point (m): the centroid of the glenoid cartilage's
+            bone side, about which part 2's floating frame turns.
+        points: The loaded nodes (m, reference geometry), gathered on every rank.
+        angles: The output angles (rad).
+        forces: Per angle, the nodal forces (N, (n, 3), at ``points``) on the scapula.
+        translation: Per angle, the scapula's translation (m).
+        rotation: Per angle, the scapula's rotation (3 x 3).
+        humerus_rotation: Per angle, the humerus's rotation (3 x 3).
+    """
+
+    reference: np.ndarray
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    angles: list = field(default_factory=list)
+    forces: list = field(default_factory=list)
+    translation: list = field(default_factory=list)
+    rotation: list = field(default_factory=list)
+    humerus_rotation: list = field(default_factory=list)
+
+    def save(self, path, comm) -> None:
+        """Write ``transfer.npz`` (collective)."""
+        save_npz(
+            path,
+            {
+                "points": self.points,
+                "forces": np.asarray(self.forces),
+                "angles_rad": np.asarray(self.angles),
+                "translation": np.asarray(self.translation),
+                "rotation": np.asarray(self.rotation),
+            },
+            comm,
+        )
+
+
+class _TransferRecorder:
+    """Records part 1's loads on the scapula into a :class:`Transfer` at each output."""
+
+    def __init__(
+        self,
+        V,
+        ft,
+        system: RigidSystem,
+        bones: tuple[RigidBody, RigidBody],
+        transfer: Transfer,
+    ):
+        self.system, self.transfer = system, transfer
+        self.scapula, self.humerus = bones
+        self.comm = V.mesh.comm
+        n_owned = V.dofmap.index_map.size_local
+        load_dofs = np.unique(
+            np.concatenate(
+                [
+                    dolfinx.fem.locate_dofs_topological(V, 2, ft.find(S.MARKERS[n].id))
+                    for n in SCAPULA_LOAD_SURFACES
+                ]
+            )
+        )
+        self.load_dofs = load_dofs[load_dofs < n_owned]
+        self.X_load = V.tabulate_dof_coordinates()[self.load_dofs]
+
+    def __call__(self, target: float) -> None:
+        """Record at output angle ``target`` (rad) (collective)."""
+        tr = self.transfer
+        Fv = self.system.assembled_residual()
+        f = -Fv.array_r.reshape(-1, 3)[self.load_dofs]
+        tr.angles.append(target)
+        tr.forces.append(gather_rows(f, self.comm))
+        tr.translation.append(self.scapula.translation.copy())
+        tr.rotation.append(self.scapula.rotation.copy())
+        tr.humerus_rotation.append(self.humerus.rotation.copy())
+
+
+def _part1_springs(surf, tags, layout: list[dict], length: float) -> list[Spring]:
+    """The flexible elements on the rigid bones: from their patch's centroid to the ground."""
+    springs = []
+    for sp in layout:
+        c = surface_centroid(surf, tags, sp["patch"])
+        sp["centre"] = c
+        springs.append(
+            Spring(sp["name"], sp["bone"], c, GROUND, c + length * sp["direction"], sp["stiffness"])
+        )
+    return springs
+
+
+def _part1_ties(ft, cell_tags, params: ShoulderParameters) -> tuple[list[Tie], dict]:
+    """The soft tissues' surfaces tied to the rigid bones and the actuator, and their tags."""
+    ties = [Tie("humerus", n) for n in HUMERUS_TIES]
+    ties += [Tie("scapula", n) for n in SCAPULA_LOAD_SURFACES]
+    ties.append(Tie("actuator", "subscapularis_origin"))
+    tied = surfaces(ft, [t.surface for t in ties])
+    if params.humeral_head_contact:
+        # the humerus cells under the muscles' sliding master: carried whole by the humerus
+        tied[S.HUMERUS_HEAD_LAYER.name] = (cell_tags, S.HUMERUS_HEAD_LAYER.id)
+        ties.append(Tie("humerus", S.HUMERUS_HEAD_LAYER.name))
+    return ties, tied
+
+
+def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tuple[dict, Transfer]:
+    """Part 1: rigid bones, deformable soft tissues (collective); writes ``transfer.npz``.
+
+    Returns:
+        The stepping's outputs (:func:`stepping.run_steps`) and the transfer to part 2.
+    """
+    p = model.params
+    sm = model.meshes["rigid-bone"]
+    mesh, ct_ = sm.mesh, sm.cell_tags
+    ft = head_tags(model, mesh, sm.facet_tags)
+    comm = mesh.comm
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+    u = dolfinx.fem.Function(V, name="displacement")
+    w = ufl.TestFunction(V)
+    dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
+    F = soft_tissue_residual(u, w, dx)
+    contact = joint_contact(V, u, ft, p)
+    humerus = RigidBody("humerus", np.zeros(3))
+    scapula_ref = patch_centroid(mesh, ft, S.MARKERS["glenoid_cartilage_bone"].id)
+    scapula = RigidBody("scapula", scapula_ref)
+    origin = patch_centroid(mesh, ft, S.MARKERS["subscapularis_origin"].id)
+    actuator = RigidBody("actuator", origin, prescribed=True)
+    springs = _part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
+    ties, tied = _part1_ties(ft, ct_, p)
+    system = RigidSystem(
+        [humerus, scapula, actuator],
+        springs,
+        u=u,
+        residual=F,
+        surfaces=tied,
+        ties=ties,
+        name="shoulder_part1",
+        options=SNES_OPTIONS | dict(run.options or {}),
+        form_compiler_params=p.quadrature(),
+        contact=contact,
+    )
+    transfer = Transfer(reference=scapula_ref)
+    record = _TransferRecorder(V, ft, system, (scapula, humerus), transfer)
+    probe = Probe(u, ct_, ft, contact, p)
+    job = Stepping(
+        system=system,
+        contact=contact,
+        actuator=actuator,
+        rotation=lambda: humerus.rotation,
+        probe=probe,
+        u=u,
+        label="part1",
+        stage="part1",
+        on_output=record,
+    )
+    data = run_steps(model, run, job)
+    run.recorder.extra("dofs_part1", unknowns(system))
+    transfer.points = gather_rows(record.X_load, comm)
+    probe.destroy()
+    system.destroy()
+    transfer.save(run.fields.parent / "transfer.npz", comm)
+    return data, transfer

@@ -1,0 +1,253 @@
+"""How the shoulder's bodies act on each other: materials, contact, springs and plates.
+
+The soft tissues' finite-strain forms (neo-Hookean cartilage, Veronda-Westmann muscle), the
+bones' modulus field from the density image, the glenohumeral (and optional muscle-bone)
+penalty contact, and the flexible elements that hang the scapula and the humerus: linear
+springs from the centre of a bone patch to the ground, acting on a small rigid plate tied to
+the patch (a spring on one node would be a point load), so the same spring model serves a
+deformable bone (coupled; decoupled part 2) and a rigid one (decoupled part 1).
+"""
+
+from __future__ import annotations
+
+import dolfinx
+import numpy as np
+import ufl
+
+from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
+from shoulder_fem.engine.rigid_system import RigidBody, Tie
+from shoulder_fem.engine.springs import GROUND, Spring
+from shoulder_fem.families.shoulder.geometry import marker_names, surface_centroid, unit
+from shoulder_fem.families.shoulder.model import ShoulderParameters
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.forms.kinematics import deformation_gradient
+from shoulder_fem.io import ct
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = [
+    "AP_DIRECTION",
+    "DISTAL_DIRECTION",
+    "DISTAL_SECTION",
+    "HORIZONTAL_DIRECTIONS",
+    "MESH_INTEGRATION",
+    "ROW_DIRECTIONS",
+    "bone_fields",
+    "cauchy_stress",
+    "joint_contact",
+    "modulus_factors",
+    "muscle_forms",
+    "soft_tissue_residual",
+    "spring_layout",
+    "spring_plates",
+    "surfaces",
+]
+
+#: Directions (scapular frame: x lateral, y anterior, z superior; normalised) of the flexible
+#: elements from their patch to the ground, per row of the 5 x 4 grid of patches on both faces
+#: of the medial blade (rows at z = -45 ... 27 mm), after the fibres they stand for: lower
+#: trapezius (to T12: inferior), rhomboid major (x 2 rows) and middle trapezius (to the spinous
+#: processes: posterior, the rhomboids also superior), upper trapezius (to the occiput:
+#: superior). The rows' different directions make the elements' lines of action non-coplanar:
+#: with one direction for all of them, every rotation about an axis in their common plane
+#: was held by the antero-posterior element alone (a 6 x 6 stiffness eigenvalue of 5e-3 N m/rad;
+#: test_shoulder checks the springs' 6 x 6 stiffness).
+ROW_DIRECTIONS = (
+    (-1.0, -0.3, -0.9),
+    (-1.0, -0.7, 0.5),
+    (-1.0, -0.7, 0.35),
+    (-1.0, -0.9, 0.0),
+    (-0.5, -0.3, 1.0),
+)
+#: The antero-posterior element (the thorax behind the blade): anterior.
+AP_DIRECTION = (0.0, 1.0, 0.0)
+#: The humerus's distal elements: vertical, downwards (they prevent abduction).
+DISTAL_DIRECTION = (0.0, 0.0, -1.0)
+#: The horizontal distal elements (``humerus_horizontal_stiffness``, our addition): lateral and
+#: anterior; together they hold the distal humerus against a horizontal swing. They act at the
+#: centroid of the distal section, which lies on the shaft axis: a twist about the shaft does
+#: not stretch them (on a spring patch, off the axis, they held the twist as well).
+HORIZONTAL_DIRECTIONS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+#: The distal section of the humerus (its cut face, with the vertical elements' patches): the
+#: humerus's elements act on it, and the coupled method ties one rigid plate to all of it
+#: (a potting fixture).
+DISTAL_SECTION = "humerus_distal_section"
+#: Contact integration against the mesh masters (:class:`shoulder_fem.contact.Contact`): the
+#: segments rule; point-wise integration stalled at 6 deg at coarse (README).
+MESH_INTEGRATION = "segments"
+
+
+# ---- the flexible elements ------------------------------------------------------------------
+
+
+def spring_layout(params: ShoulderParameters) -> list[dict]:
+    """Every flexible element: name, patch, plate, bone, direction and stiffness (N/m).
+
+    ``patch``: the surface (a marker or a set of :data:`meshes.shoulder.SURFACE_SETS`) at whose
+    centroid the element acts; ``plate``: the surface that the coupled method ties to the
+    element's rigid plate (the scapula's elements: their patch; the humerus's: the whole distal
+    section, one plate for its 4 + 2 elements).
+    """
+    out = []
+    for i in range(20):
+        d = ROW_DIRECTIONS[i % 5]  # rows at z = -45, -27, -9, 9, 27 mm
+        out.append(
+            {
+                "name": f"scapula_spring_{i + 1:02d}",
+                "bone": "scapula",
+                "direction": unit(d),
+                "stiffness": params.scapula_spring_stiffness,
+            }
+        )
+    out.append(
+        {
+            "name": "scapula_ap_spring",
+            "bone": "scapula",
+            "direction": unit(AP_DIRECTION),
+            "stiffness": params.ap_spring_stiffness,
+        }
+    )
+    for i in range(4):
+        out.append(
+            {
+                "name": f"humerus_distal_spring_{i + 1}",
+                "bone": "humerus",
+                "direction": unit(DISTAL_DIRECTION),
+                "stiffness": params.humerus_spring_stiffness,
+            }
+        )
+    if params.humerus_horizontal_stiffness > 0:
+        for i, d in enumerate(HORIZONTAL_DIRECTIONS):
+            out.append(
+                {
+                    "name": f"humerus_horizontal_spring_{i + 1}",
+                    "patch": DISTAL_SECTION,
+                    "bone": "humerus",
+                    "direction": unit(d),
+                    "stiffness": params.humerus_horizontal_stiffness,
+                }
+            )
+    for sp in out:
+        sp.setdefault("patch", sp["name"])
+        sp["plate"] = DISTAL_SECTION if sp["bone"] == "humerus" else sp["patch"]
+    return out
+
+
+def spring_plates(mesh, facet_tags, springs: list[dict], length: float):
+    """Rigid plates tied to the springs' plate surfaces (one per plate), and their springs.
+
+    Each spring runs from its patch's centroid, on its plate, to the ground, ``length`` (m)
+    along its direction. Returns (bodies, ties, springs).
+    """
+    bodies, ties, out, centres = [], [], [], {}
+
+    def centre(surface: str) -> np.ndarray:  # a scapular patch is its own plate: once each
+        if surface not in centres:
+            centres[surface] = surface_centroid(mesh, facet_tags, surface)
+        return centres[surface]
+
+    for sp in springs:
+        plate = sp["plate"]
+        if plate not in (b.name for b in bodies):
+            bodies.append(RigidBody(plate, centre(plate)))
+            ties += [Tie(plate, m) for m in marker_names(plate)]
+        c = centre(sp["patch"])
+        out.append(
+            Spring(sp["name"], plate, c, GROUND, c + length * sp["direction"], sp["stiffness"])
+        )
+    return bodies, ties, out
+
+
+def surfaces(facet_tags, names) -> dict:
+    """``{marker name: (facet_tags, marker id)}``: the tied surfaces of a rigid system."""
+    return {n: (facet_tags, S.MARKERS[n].id) for n in names}
+
+
+# ---- contact --------------------------------------------------------------------------------
+
+
+def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
+    """Glenohumeral contact; muscle-bone contact of the rotator cuff on the humeral head.
+
+    The two articular surfaces are in large-sliding, frictionless penalty contact (the glenoid
+    surface is the slave: its pressure is the paper's Fig. 2). With ``muscle_contact`` =
+    ``humeral-head`` the muscles' deep faces slide on the humerus's free surface around the
+    head; the muscles' contact with the scapula is not modelled.
+    """
+    pairs = [
+        ContactPair(
+            "glenohumeral",
+            slave=(S.MARKERS["glenoid_articular"].id,),
+            master=MeshSurface((S.MARKERS["humeral_articular"].id,)),
+            penalty=params.contact_penalty,
+        )
+    ]
+    if params.humeral_head_contact:
+        pairs.append(
+            ContactPair(
+                "muscle_humerus",
+                slave=(S.MUSCLE_DEEP_SURFACE.id,),
+                master=MeshSurface((S.HUMERUS_HEAD_SURFACE.id,)),
+                penalty=params.muscle_contact_penalty,
+                search_depth=params.muscle_contact_depth,
+                smoothing=params.muscle_contact_smoothing,
+            )
+        )
+    return Contact(
+        V,
+        u,
+        facet_tags,
+        pairs,
+        quadrature_degree=params.contact_quadrature,
+        slave_integration="element",
+        mesh_integration=MESH_INTEGRATION,
+    )
+
+
+# ---- materials and forms --------------------------------------------------------------------
+
+
+def soft_tissue_residual(u, w, dx) -> ufl.Form:
+    """Internal virtual power of the cartilages and the muscles (finite strain)."""
+    cart, musc = materials.NeoHookean.cartilage(), materials.VerondaWestmann.muscle()
+    F = vp.internal_power_finite(cart, u, w, dx(S.HUMERAL_CARTILAGE.id))
+    F += vp.internal_power_finite(cart, u, w, dx(S.GLENOID_CARTILAGE.id))
+    for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS):
+        F += vp.internal_power_finite(musc, u, w, dx(m.id))
+    return F
+
+
+def muscle_forms(u, w, dx) -> dict:
+    """Each muscle's internal virtual power, compiled, by muscle name."""
+    musc = materials.VerondaWestmann.muscle()
+    out = {}
+    for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS):
+        out[m.name] = dolfinx.fem.form(vp.internal_power_finite(musc, u, w, dx(m.id)))
+    return out
+
+
+def modulus_factors(params: ShoulderParameters) -> dict[str, float]:
+    """The factor on each bone's E = E0 (rho/rho0)^2 (1 = the paper's Table I), by bone."""
+    return {"scapula": params.scapula_modulus_factor, "humerus": params.humerus_modulus_factor}
+
+
+def bone_fields(mesh, cell_tags, image, params: ShoulderParameters):
+    """(density kg/m^3 as a P1 field, E Pa as a UFL field) of the bones.
+
+    Both sampled from the image at the mesh nodes (E = E0 (rho/rho0)^2); E times each bone's
+    modulus factor (:func:`modulus_factors`). The factor is a cell-wise (DG0) field, 1 outside
+    the bones, so that it is exact on each bone's cells whatever the partition (a node-wise
+    factor would need the bone's cells on the node's owner).
+    """
+    rho, E = ct.nodal_modulus(mesh, image)
+    factor = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)), name="modulus_factor")
+    factor.x.array[:] = 1.0
+    for body, value in modulus_factors(params).items():
+        factor.x.array[cell_tags.find(S.MARKERS[body].id)] = float(value)
+    return rho, factor * E
+
+
+def cauchy_stress(bone, u) -> ufl.core.expr.Expr:
+    """Cauchy stress (Pa) of a finite-strain material law ``bone`` at displacement ``u``."""
+    Fg = deformation_gradient(u)
+    return bone.first_piola(Fg) * Fg.T / ufl.det(Fg)

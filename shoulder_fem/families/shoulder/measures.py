@@ -1,0 +1,165 @@
+"""What both methods measure on the joint at an output angle, with the same operators.
+
+The glenoid's nodal contact pressure and shear, the muscles' forces at their scapular
+footprints (:class:`Probe`), the scapula's nodal von Mises stress (:class:`VonMises`) and where
+the glenoid presses on the humeral cartilage (:func:`cap_contact_angles`). One set of operators
+for both methods, so that their outputs compare point for point.
+"""
+
+from __future__ import annotations
+
+import math
+
+import dolfinx
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shoulder_fem.engine.contact import Contact
+from shoulder_fem.families.shoulder.geometry import cap_angles, gather_rows
+from shoulder_fem.families.shoulder.interactions import muscle_forms
+from shoulder_fem.families.shoulder.model import ShoulderParameters
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = ["REPORTED_MUSCLES", "Probe", "VonMises", "cap_contact_angles"]
+
+REPORTED_MUSCLES = ("subscapularis", "supraspinatus", "infraspinatus")
+
+
+class Probe:
+    """Per-output measurements shared by both methods (collective)."""
+
+    def __init__(self, u, cell_tags, facet_tags, contact: Contact, params: ShoulderParameters):
+        V = u.function_space
+        mesh = V.mesh
+        self.u, self.V, self.mesh, self.contact = u, V, mesh, contact
+        self.comm = mesh.comm
+        dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=params.quadrature())
+        self._muscle = muscle_forms(u, ufl.TestFunction(V), dx)
+        self._vec = fem_petsc.create_vector(next(iter(self._muscle.values())))
+        n_owned = V.dofmap.index_map.size_local
+        self._origin = {}
+        for m in REPORTED_MUSCLES:
+            tag = S.MARKERS[f"{m}_origin"].id
+            d = dolfinx.fem.locate_dofs_topological(V, 2, facet_tags.find(tag))
+            self._origin[m] = d[d < n_owned]
+        # glenoid nodes (P1 dofs of the contact pressure field on the slave surface)
+        Q = contact.Q
+        qd = dolfinx.fem.locate_dofs_topological(
+            Q, 2, facet_tags.find(S.MARKERS["glenoid_articular"].id)
+        )
+        self._glenoid = qd[qd < Q.dofmap.index_map.size_local]
+        self.glenoid_points = gather_rows(Q.tabulate_dof_coordinates()[self._glenoid], self.comm)
+
+    def muscle_forces(self) -> dict[str, np.ndarray]:
+        """Force (N, vector) each muscle applies to its origin plate or bone footprint."""
+        out = {}
+        for name, form in self._muscle.items():
+            with self._vec.localForm() as loc:
+                loc.set(0.0)
+            fem_petsc.assemble_vector(self._vec, form)
+            self._vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            f = self._vec.array_r.reshape(-1, 3)[self._origin[name]].sum(axis=0)
+            out[name] = -self.comm.allreduce(f, op=MPI.SUM)
+        return out
+
+    def glenoid(self) -> tuple[np.ndarray, np.ndarray]:
+        """Nodal contact pressure and shear (Pa) at the glenoid points (gathered on every rank)."""
+        p, t = self.contact.pressure_fields()
+        return (
+            gather_rows(p.x.array[self._glenoid], self.comm),
+            gather_rows(t.x.array[self._glenoid], self.comm),
+        )
+
+    def destroy(self) -> None:
+        """Free the PETSc vector."""
+        self._vec.destroy()
+
+
+class VonMises:
+    """Nodal von Mises stress (Pa) of the scapula (collective).
+
+    Cell values at the vertices (DG1), volume-weighted average over the scapula cells around
+    each vertex.
+    """
+
+    def __init__(self, mesh, cell_tags, stress: ufl.core.expr.Expr):
+        dev = stress - ufl.tr(stress) / 3 * ufl.Identity(3)
+        vm = ufl.sqrt(1.5 * ufl.inner(dev, dev))
+        self.D = dolfinx.fem.FunctionSpace(mesh, ("DG", 1))
+        self.P = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
+        self._expr = dolfinx.fem.Expression(vm, self.D.element.interpolation_points())
+        self._dg = dolfinx.fem.Function(self.D)
+        self.field = dolfinx.fem.Function(self.P, name="von_mises")
+        n_owned = mesh.topology.index_map(3).size_local
+        cells = cell_tags.find(S.SCAPULA.id)
+        self._cells = cells[cells < n_owned]
+        mesh.topology.create_connectivity(3, 3)
+        vol_form = dolfinx.fem.form(
+            ufl.TestFunction(dolfinx.fem.FunctionSpace(mesh, ("DG", 0))) * ufl.dx
+        )
+        self._vol = fem_petsc.assemble_vector(vol_form).array_r.copy()
+        self._num = dolfinx.fem.Function(self.P)
+        self._den = dolfinx.fem.Function(self.P)
+        p_dofs = np.array([self.P.dofmap.cell_dofs(c) for c in self._cells], dtype=np.int64)
+        d_dofs = np.array([self.D.dofmap.cell_dofs(c) for c in self._cells], dtype=np.int64)
+        self._p_dofs, self._d_dofs = p_dofs.reshape(-1, 4), d_dofs.reshape(-1, 4)
+        vol = np.repeat(self._vol[self._cells], 4).reshape(-1, 4)
+        np.add.at(self._den.x.array, self._p_dofs, vol)
+        self._den.x.scatter_reverse(dolfinx.la.ScatterMode.add)
+        self._den.x.scatter_forward()
+        owned = self.P.dofmap.index_map.size_local
+        self._nodes = np.unique(self._p_dofs)
+        self._nodes = self._nodes[self._nodes < owned]
+
+    def update(self) -> dolfinx.fem.Function:
+        """Evaluate at the current state; returns the P1 field (0 off the scapula)."""
+        self._dg.interpolate(self._expr)
+        self._num.x.array[:] = 0.0
+        vals = self._dg.x.array[self._d_dofs] * self._vol[self._cells][:, None]
+        np.add.at(self._num.x.array, self._p_dofs, vals)
+        self._num.x.scatter_reverse(dolfinx.la.ScatterMode.add)
+        self._num.x.scatter_forward()
+        den = self._den.x.array
+        self.field.x.array[:] = np.where(den > 0, self._num.x.array / np.where(den > 0, den, 1), 0)
+        return self.field
+
+    def nodal(self, comm: MPI.Comm) -> tuple[np.ndarray, np.ndarray]:
+        """(points m, von Mises Pa) of the scapula vertices, gathered on every rank."""
+        X = self.P.tabulate_dof_coordinates()[self._nodes]
+        return gather_rows(X, comm), gather_rows(self.field.x.array[self._nodes], comm)
+
+    def cells(self, comm: MPI.Comm) -> tuple[np.ndarray, np.ndarray]:
+        """(vertex points, tetrahedra) of the scapula, gathered on every rank.
+
+        Vertices are deduplicated by their global P1 index.
+        """
+        imap = self.P.dofmap.index_map
+        glob = imap.local_to_global(self._p_dofs.ravel().astype(np.int32)).reshape(-1, 4)
+        X = self.P.tabulate_dof_coordinates()
+        gl = gather_rows(glob, comm)
+        xs = gather_rows(X[self._p_dofs.ravel()], comm)
+        uniq, inverse = np.unique(gl.ravel(), return_inverse=True)
+        points = np.zeros((len(uniq), 3))
+        points[inverse] = xs
+        return points, inverse.reshape(-1, 4)
+
+
+def cap_contact_angles(
+    contact: Contact, centre: np.ndarray, axis: np.ndarray, comm: MPI.Comm
+) -> tuple[float, float]:
+    """Where the glenoid presses on the humeral cartilage, in deg from the cartilage's axis.
+
+    Force-weighted mean and largest angle, in the humerus's reference geometry (the cap of
+    ``centre`` (m) and unit ``axis``, :func:`geometry.humeral_cap`) (collective).
+    """
+    X, f = contact.master_points("glenohumeral")
+    a = cap_angles(X, centre, axis)
+    fa, fs = (
+        comm.allreduce(float((f * a).sum()), op=MPI.SUM),
+        comm.allreduce(float(f.sum()), op=MPI.SUM),
+    )
+    top = comm.allreduce(float(a.max(initial=0.0)), op=MPI.MAX)
+    return (math.degrees(fa / fs) if fs > 0 else 0.0), math.degrees(top)

@@ -1,0 +1,122 @@
+"""What a shoulder run records besides the stepping's series: probes and ``shoulder.npz``.
+
+The scapula's von Mises series, the split of the Newton time, the unknowns of a solve, and
+the arrays of ``shoulder.npz`` (read by :mod:`shoulder_fem.families.shoulder.report`), written
+the same way by both methods.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+from scipy.spatial import cKDTree
+
+from shoulder_fem.engine.contact import Contact
+from shoulder_fem.engine.rigid_system import RigidSystem
+from shoulder_fem.families.shoulder.geometry import patch_centroid
+from shoulder_fem.families.shoulder.measures import VonMises
+from shoulder_fem.families.shoulder.model import ShoulderModel
+from shoulder_fem.io.output import atomic_savez
+from shoulder_fem.io.results import Recorder
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = ["record_time_split", "record_von_mises", "save_npz", "save_results", "unknowns"]
+
+
+def record_von_mises(
+    recorder: Recorder, stress_vm: VonMises, x: float, data: dict, comm: MPI.Comm
+) -> None:
+    """Record the scapula's von Mises stress at output angle ``x`` (deg) (collective).
+
+    Its maximum as a series point, its nodal values in ``data`` (the last output's are saved).
+    """
+    field_vm = stress_vm.update()
+    local = float(field_vm.x.array.max()) if len(field_vm.x.array) else 0.0
+    recorder.add_series_point(
+        "scapula_max_von_mises", x, comm.allreduce(local, op=MPI.MAX), "deg", "Pa"
+    )
+    data["von_mises"] = stress_vm.nodal(comm)
+    data["von_mises_angle_deg"] = x
+
+
+def record_time_split(
+    recorder: Recorder, label: str, system: RigidSystem, contact: Contact
+) -> None:
+    """Where a stepping's Newton time went (probes ``<label>_time_*_s``, wall s, slowest rank).
+
+    ``newton``: in the Newton solves in all; ``residual`` and ``jacobian``: their evaluations
+    (FE assembly, contact, the reduction to the rigid bodies; within ``jacobian``:
+    ``jacobian_fe_assembly`` and ``jacobian_reduction``, the products Pᵀ K P); ``linear``: the
+    rest of ``newton`` (the LU factorizations and solves); ``contact``: the contact search and
+    assembly, part of ``residual`` and ``jacobian``.
+    """
+    st, cs = system.stats, contact.stats
+    times = {
+        "newton": st.snes_s,
+        "residual": st.residual_s,
+        "jacobian": st.jacobian_s,
+        "jacobian_fe_assembly": st.fe_assembly_s,
+        "jacobian_reduction": st.reduction_s,
+        "linear": max(st.snes_s - st.residual_s - st.jacobian_s, 0.0),
+        "contact": cs.search_s + cs.assembly_s,
+    }
+    for key, value in times.items():
+        worst = system.comm.allreduce(float(value), op=MPI.MAX)
+        recorder.set_probe(f"{label}_time_{key}_s", worst, "s")
+
+
+def unknowns(system: RigidSystem) -> int:
+    """Unknowns of a system's Newton solves: free FE DOFs and six per rigid body (collective).
+
+    Tied and fixed nodes are not unknowns (the rigid-bone mesh carries tied bone nodes).
+    """
+    x = system.reduced_vector()
+    n = x.getSize()
+    x.destroy()
+    return int(n)
+
+
+def save_npz(path: Path, arrays: dict, comm: MPI.Comm) -> None:
+    """Write ``arrays`` to ``path`` atomically (rank 0 writes, every rank waits)."""
+    if comm.rank == 0:
+        atomic_savez(path, arrays)
+    comm.Barrier()
+
+
+def save_results(
+    model: ShoulderModel, data: dict, stress_vm: VonMises, mesh, ft, path: Path
+) -> None:
+    """shoulder.npz of one run (see :mod:`shoulder_fem.families.shoulder.report`) (collective).
+
+    ``data``: the stepping's outputs (:func:`stepping.run_steps`); ``mesh``, ``ft``: the mesh
+    of ``stress_vm`` and its facet tags.
+    """
+    comm = mesh.comm
+    points, vm = data.get("von_mises", (np.zeros((0, 3)), np.zeros(0)))
+    cell_points, cells = stress_vm.cells(comm)
+    # the nodal values in the order of the cell points
+    tree = cKDTree(points) if len(points) else None
+    order = tree.query(cell_points)[1] if tree is not None else np.zeros(0, dtype=int)
+    section = patch_centroid(mesh, ft, S.MARKERS["scapula_section"].id)[2]
+    centre, axis = model.info["glenoid_frame"]
+    n_out = len(data["angles_deg"])
+    arrays = {
+        "angles_deg": np.asarray(data["angles_deg"], dtype=float),
+        "glenoid_points": np.asarray(data["glenoid_points"]),
+        "glenoid_pressure": np.asarray(data["glenoid_pressure"]).reshape(n_out, -1),
+        "glenoid_shear": np.asarray(data["glenoid_shear"]).reshape(n_out, -1),
+        "glenoid_centre": centre,
+        "glenoid_axis": axis,
+        "scapula_points": cell_points,
+        "scapula_cells": cells,
+        "scapula_von_mises": np.asarray(vm)[order] if len(vm) else np.zeros(len(cell_points)),
+        "von_mises_angle_deg": float(data.get("von_mises_angle_deg", math.nan)),
+        "section_z": float(section),
+        "final_angle_deg": float(data["final_angle_deg"]),
+    }
+    for key, value in data.get("arrays", {}).items():
+        arrays[key] = value
+    save_npz(path, arrays, comm)

@@ -1,0 +1,330 @@
+"""Method ``decoupled``, part 2: the scapula alone, linear elastic in its floating frame.
+
+Paper eq. 13: K u = R^T f (part 1's transferred loads) + springs + the rigid-frame inertia and
+Coriolis loads of the recorded motion (the rotation takes ``rotation_duration``), with an
+inertia relief that leaves only the self-equilibrated part of the inertia. One factorization
+serves every angle (chord iterations; only the springs' geometric terms are nonlinear).
+"""
+
+from __future__ import annotations
+
+import math
+
+import dolfinx
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.so3 import hat
+from shoulder_fem.engine.solver import StepperStats
+from shoulder_fem.engine.springs import GROUND, Spring, spring_response
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.shoulder.geometry import patch_centroid
+from shoulder_fem.families.shoulder.interactions import bone_fields, surfaces
+from shoulder_fem.families.shoulder.measures import VonMises
+from shoulder_fem.families.shoulder.model import ShoulderModel
+from shoulder_fem.families.shoulder.outputs import record_von_mises
+from shoulder_fem.forms import materials
+from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = ["CHORD_OPTIONS", "FrameInertia", "NodalLoads", "finite_differences", "run_part2"]
+
+#: Newton settings of part 2: the Jacobian of the first solve is kept (chord iterations).
+CHORD_OPTIONS = {
+    "snes_lag_jacobian": -2,
+    "snes_lag_jacobian_persists": True,
+    "snes_lag_preconditioner": -2,
+    "snes_lag_preconditioner_persists": True,
+    # chord iterations converge linearly (rate ~0.15) to a round-off floor of ~3e-10 N
+    "snes_rtol": 1e-8,
+    "snes_atol": 1e-8,
+    "snes_max_it": 50,
+}
+
+
+class NodalLoads:
+    """Given nodal forces (N) on a :class:`RigidSystem`, through its contact hook.
+
+    External loads: subtracted from the residual; no tangent.
+    """
+
+    def __init__(self, V, points: np.ndarray):
+        self.comm = V.mesh.comm
+        n_owned = V.dofmap.index_map.size_local
+        X = V.tabulate_dof_coordinates()[:n_owned]
+        dist, idx = cKDTree(X).query(points) if n_owned else (np.full(len(points), np.inf), None)
+        self._mine = np.flatnonzero(dist < 1e-9)
+        self._rows = idx[self._mine] if idx is not None else np.zeros(0, dtype=np.int64)
+        found = self.comm.allreduce(len(self._mine), op=MPI.SUM)
+        if found != len(points):
+            raise ValueError(
+                f"decoupled part 2: {len(points) - found} of {len(points)} transferred load "
+                "points are no node of the scapula mesh"
+            )
+        self.forces = np.zeros((len(points), 3))
+
+    def add_residual(self, b: PETSc.Vec) -> None:
+        """Subtract the forces from the owned rows of the (full) residual ``b``."""
+        with b.localForm() as loc:
+            arr = loc.array.reshape(-1, 3)
+            arr[self._rows] -= self.forces[self._mine]
+
+    def jacobian_matrix(self, K: PETSc.Mat) -> PETSc.Mat:
+        """An empty matrix of the layout of ``K`` (dead loads have no tangent)."""
+        A = PETSc.Mat().createAIJ(K.getSizes(), nnz=1, comm=self.comm)
+        A.setUp()
+        A.assemble()
+        return A
+
+
+def finite_differences(times, translations, rotations):
+    """Per output: velocity, acceleration (spatial) and body-frame Ω, dΩ/dt (backward).
+
+    ``times`` (s), ``translations`` (m, (n, 3)), ``rotations`` ((n, 3, 3)); the first output's
+    rates are zero.
+    """
+    n = len(times)
+    vel, acc = np.zeros((n, 3)), np.zeros((n, 3))
+    om, dom = np.zeros((n, 3)), np.zeros((n, 3))
+    for k in range(1, n):
+        dt = times[k] - times[k - 1]
+        vel[k] = (translations[k] - translations[k - 1]) / dt
+        acc[k] = (vel[k] - vel[k - 1]) / dt
+        om[k] = Rotation.from_matrix(rotations[k - 1].T @ rotations[k]).as_rotvec() / dt
+        dom[k] = (om[k] - om[k - 1]) / dt
+    return vel, acc, om, dom
+
+
+class FrameInertia:
+    """The floating frame's inertia loads on the scapula, and their relief (collective).
+
+    Frame acceleration a0 + dΩ x r + Ω x (Ω x r) (r from ``ref``) and Coriolis 2 Ω x du/dt,
+    floating-frame components. Inertia relief: part 1 is quasi-static, so its transferred
+    loads balance the springs without the inertia of the rigid motion; the resultant of the
+    frame inertia (force and moment) has nothing to balance it and would only drive a rigid
+    motion of the floating frame on the soft suspension. A rigid acceleration field
+    a + alpha x r that cancels it is added: the scapula is loaded by the self-equilibrated part
+    of its inertia.
+    """
+
+    def __init__(self, mesh, rho, u, u_prev, ref: np.ndarray, dx):
+        self.comm = mesh.comm
+        self.rho, self.dx = rho, dx
+        self.a0 = dolfinx.fem.Constant(mesh, np.zeros(3))
+        self.om = dolfinx.fem.Constant(mesh, np.zeros(3))
+        self.dom = dolfinx.fem.Constant(mesh, np.zeros(3))
+        self.inv_dt = dolfinx.fem.Constant(mesh, 0.0)
+        self.relief_a = dolfinx.fem.Constant(mesh, np.zeros(3))
+        self.relief_alpha = dolfinx.fem.Constant(mesh, np.zeros(3))
+        self.r = r = ufl.SpatialCoordinate(mesh) - ufl.as_vector(ref)
+        om, dom = self.om, self.dom
+        self.a_frame = self.a0 + ufl.cross(dom, r) + ufl.cross(om, ufl.cross(om, r))
+        self.a_cor = 2 * ufl.cross(om, (u - u_prev) * self.inv_dt)
+        self.a_relief = self.relief_a + ufl.cross(self.relief_alpha, r)
+
+    def residual(self, w) -> ufl.Form:
+        """The inertia's virtual power on test function ``w`` (frame, relief and Coriolis)."""
+        return ufl.inner(self.rho * (self.a_frame + self.a_relief + self.a_cor), w) * self.dx
+
+    def compile(self) -> None:
+        """Compile the resultant forms and assemble the relief's 6 x 6 mass matrix about ref."""
+        rho, dx, r, a_frame = self.rho, self.dx, self.r, self.a_frame
+        self.inertia_forms = [dolfinx.fem.form(rho * a_frame[i] * dx) for i in range(3)]
+        self.inertia_forms += [
+            dolfinx.fem.form(rho * ufl.cross(r, a_frame)[i] * dx) for i in range(3)
+        ]
+        self.coriolis_forms = [dolfinx.fem.form(rho * self.a_cor[i] * dx) for i in range(3)]
+        mass = self._integral(rho)
+        first = np.array([self._integral(rho * r[i]) for i in range(3)])
+        second = np.array([[self._integral(rho * r[i] * r[j]) for j in range(3)] for i in range(3)])
+        # [m I, -hat(S); hat(S), J] (a, alpha) = -(F, M), J = tr(R2) I - R2 about ref
+        self.relief_matrix = np.block(
+            [
+                [mass * np.eye(3), -hat(first)],
+                [hat(first), np.trace(second) * np.eye(3) - second],
+            ]
+        )
+
+    def _integral(self, expr) -> float:
+        return self.comm.allreduce(
+            dolfinx.fem.assemble_scalar(dolfinx.fem.form(expr * self.dx)), op=MPI.SUM
+        )
+
+    def _assemble(self, forms) -> np.ndarray:
+        return np.array(
+            [self.comm.allreduce(dolfinx.fem.assemble_scalar(g), op=MPI.SUM) for g in forms]
+        )
+
+    def relieve(self) -> np.ndarray:
+        """Set the relief that cancels the frame inertia's resultant; returns that (F, M)."""
+        resultant = self._assemble(self.inertia_forms)
+        relief = np.linalg.solve(self.relief_matrix, -resultant)
+        self.relief_a.value[:], self.relief_alpha.value[:] = relief[:3], relief[3:]
+        return resultant
+
+    def coriolis(self) -> np.ndarray:
+        """The resultant of the Coriolis loads (N) at the current state."""
+        return self._assemble(self.coriolis_forms)
+
+
+def _suspension(mesh, ft, layout: list[dict], length: float):
+    """The scapula's springs, each on a rigid plate tied to its patch (collective).
+
+    The springs linearised about the recorded pose: their force there (floating-frame
+    components) is applied to their plate, their stiffness is that of the reference pose
+    (the ground end fixed in the floating frame). The floating-frame displacements are
+    microns, so the change of the springs' directions over them is negligible, and the
+    stiffness -- hence the factorization -- is the same at every angle.
+
+    Returns:
+        (plates, ties, springs on the plates, the same springs on the rigid scapula).
+    """
+    bodies, ties, springs, world = [], [], [], []
+    for sp in layout:
+        if sp["bone"] != "scapula":
+            continue
+        c = patch_centroid(mesh, ft, S.MARKERS[sp["name"]].id)
+        bodies.append(RigidBody(sp["name"], c))
+        ties.append(Tie(sp["name"], sp["name"]))
+        end = c + length * sp["direction"]
+        springs.append(Spring(sp["name"], sp["name"], c, GROUND, end, sp["stiffness"]))
+        world.append(Spring(sp["name"], "scapula", c, GROUND, end, sp["stiffness"]))
+    return bodies, ties, springs, world
+
+
+class _Part2:
+    """The scapula's floating-frame problem over part 1's output angles (collective)."""
+
+    def __init__(self, model: ShoulderModel, run: RunContext, transfer, layout: list[dict]):
+        p = model.params
+        sm = model.meshes["scapula"]
+        self.mesh, ct_, self.ft = mesh, ct_, ft = sm.mesh, sm.cell_tags, sm.facet_tags
+        self.comm = mesh.comm
+        self.recorder, self.transfer, self.ref = run.recorder, transfer, transfer.reference
+        V = self.V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+        u = self.u = dolfinx.fem.Function(V, name="displacement")
+        self.u_prev = dolfinx.fem.Function(V)
+        w = ufl.TestFunction(V)
+        dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
+        rho, E = bone_fields(mesh, ct_, model.image, p)
+        bone = materials.LinearElastic(E, materials.BONE_NU)
+        self.inertia = FrameInertia(mesh, rho, u, self.u_prev, self.ref, dx)
+        F = vp.internal_power_linear(bone, u, w, dx)
+        F += self.inertia.residual(w)
+        self.inertia.compile()
+        self.loads = NodalLoads(V, transfer.points)
+        self.bodies, ties, springs, self.world = _suspension(mesh, ft, layout, p.spring_length)
+        self.system = RigidSystem(
+            self.bodies,
+            springs,
+            u=u,
+            residual=F,
+            surfaces=surfaces(ft, [t.surface for t in ties]),
+            ties=ties,
+            name="shoulder_part2",
+            options=CHORD_OPTIONS | dict(run.options or {}),
+            form_compiler_params=p.quadrature(),
+            contact=self.loads,
+            linear_ties=True,
+        )
+        self.stress_vm = VonMises(mesh, ct_, bone.stress(ufl.sym(ufl.grad(u))))
+        self.angles = np.asarray(transfer.angles)
+        self.times = self.angles / p.final_angle * p.rotation_duration
+        self.T = np.asarray(transfer.translation)
+        self.R = np.asarray(transfer.rotation)
+        _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
+        self.writer = dolfinx.io.XDMFFile(self.comm, str(run.fields / "part2.xdmf"), "w")
+        self.writer.write_mesh(mesh)
+        P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+        self.u1 = dolfinx.fem.Function(P1, name="displacement")
+        self.iterations = 0
+        self.worst = 0.0
+
+    def _load(self, k: int, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply output ``k``'s transferred forces ``f`` and springs at the recorded pose.
+
+        Floating-frame components; returns their force and moment sums (world frame).
+        """
+        ref, points = self.ref, self.transfer.points
+        Rk, tk = self.R[k], self.T[k]
+        self.loads.forces[:] = f @ Rk  # R^T f per row: floating-frame components
+        centre = ref + tk
+        fs, ms = f.sum(axis=0), np.cross(points - ref, f @ Rk).sum(axis=0)
+        ms = Rk @ ms
+        for body, sp in zip(self.bodies, self.world, strict=True):
+            pa = centre + Rk @ (np.asarray(sp.point_a) - ref)
+            g = spring_response(sp, pa, np.asarray(sp.point_b)).gradient
+            body.force = -Rk.T @ g
+            fs, ms = fs - g, ms + np.cross(pa - centre, -g)
+        return fs, ms
+
+    def step(self, k: int, target: float, data: dict) -> None:
+        """Solve at output ``k`` (angle ``target`` rad) and record its outputs."""
+        inertia, rec, comm = self.inertia, self.recorder, self.comm
+        x = math.degrees(target)
+        Rk = self.R[k]
+        f = np.asarray(self.transfer.forces[k])
+        fs, ms = self._load(k, f)
+        inertia.a0.value[:] = Rk.T @ self.acc[k]
+        inertia.om.value[:] = self.omega[k]
+        inertia.dom.value[:] = self.domega[k]
+        inertia.inv_dt.value = 1.0 / (self.times[k] - self.times[k - 1]) if k > 0 else 0.0
+        resultant = inertia.relieve()
+        self.iterations += self.system.solve(step=f"part2 {x:.0f} deg")
+        # equilibrium of the transferred loads with the springs at the recorded rigid pose
+        scale = float(np.abs(f).sum()) or 1.0
+        lever = float(np.linalg.norm(self.transfer.points - self.ref, axis=1).max())
+        resid = max(float(np.linalg.norm(fs)) / scale, float(np.linalg.norm(ms)) / (scale * lever))
+        self.worst = max(self.worst, resid)
+        rec.add_series_point("transfer_equilibrium_residual", x, resid, "deg", "1")
+        coriolis = inertia.coriolis()
+        rec.add_series_point(
+            "part2_inertia_force", x, float(np.linalg.norm(resultant[:3])), "deg", "N"
+        )
+        rec.add_series_point(
+            "part2_inertia_moment", x, float(np.linalg.norm(resultant[3:])), "deg", "N m"
+        )
+        rec.add_series_point("part2_coriolis_force", x, float(np.linalg.norm(coriolis)), "deg", "N")
+        rec.add_series_point(
+            "part2_transferred_force", x, float(np.linalg.norm(f, axis=1).sum()), "deg", "N"
+        )
+        record_von_mises(rec, self.stress_vm, x, data, comm)
+        self.u1.interpolate(self.u)
+        self.writer.write_function(self.u1, x)
+        self.u_prev.x.array[:] = self.u.x.array
+
+    def finish(self) -> None:
+        """Close the fields file, record the probes and counters, free the solver."""
+        rec = self.recorder
+        self.writer.close()
+        rec.set_probe("transfer_equilibrium_residual", self.worst, "1")
+        rec.set_probe("part2_factorizations", self.system.stats.factorizations, "1")
+        rec.set_probe("part2_iterations", self.iterations, "1")
+        rec.add_solver_counts(self.system.stats, StepperStats(steps=len(self.angles)))
+        rec.extra("dofs_part2", self.V.dofmap.index_map.size_global * 3)
+        self.system.destroy()
+
+
+def run_part2(model: ShoulderModel, run: RunContext, transfer, layout: list[dict], data: dict):
+    """The scapula in its floating frame, linear elastic, one factorization (collective).
+
+    Args:
+        model: The decoupled model (its ``scapula`` mesh).
+        run: The run's context.
+        transfer: Part 1's :class:`~shoulder_fem.families.shoulder.decoupled.Transfer`.
+        layout: The flexible elements (:func:`interactions.spring_layout`).
+        data: The stepping's outputs; the von Mises stress of the last angle is added.
+
+    Returns:
+        (the von Mises operator, the scapula mesh, its facet tags), for ``shoulder.npz``.
+    """
+    part2 = _Part2(model, run, transfer, layout)
+    for k, target in enumerate(part2.angles):
+        part2.step(k, target, data)
+    part2.finish()
+    return part2.stress_vm, part2.mesh, part2.ft

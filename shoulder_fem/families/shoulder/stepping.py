@@ -1,0 +1,482 @@
+"""The angle-driven stepping shared by the coupled method and decoupled part 1.
+
+The scapular origin of the subscapularis is a rigid plate displaced along
+:data:`ACTUATION_DIRECTION`; the humeral rotation angle (the twist about the shaft axis of the
+humerus's best-fit rigid rotation) is the progress variable. The actuation is found by secant
+iterations for each target angle (every ``angle_step``), with cutbacks of failed steps, and the
+outputs are recorded every ``output_angle`` (:func:`run_steps`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import dolfinx
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from shoulder_fem.engine.contact import Contact
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
+from shoulder_fem.engine.solver import ConvergenceError, StepperStats
+from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, unit
+from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
+from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
+from shoulder_fem.families.shoulder.outputs import record_time_split, record_von_mises
+from shoulder_fem.io.results import Recorder
+
+__all__ = [
+    "ACTUATION_DIRECTION",
+    "FALLBACK_LINESEARCH",
+    "SNES_OPTIONS",
+    "AngleOutputs",
+    "RotationDriver",
+    "StepLog",
+    "Stepping",
+    "drive_rotation",
+    "run_steps",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Displacement direction of the subscapularis origin plate: medial, along the blade.
+ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
+
+#: Newton settings of the nonlinear solves. Joint forces are ~10-100 N: atol 1e-3 N is 1e-5 of
+#: them. The penalty contact between the faceted surfaces converges linearly at the end (rate
+#: ~0.5-0.85 per iteration: the change of the segments' areas is not in the tangent). Full
+#: Newton steps (``basic``) are the fastest almost everywhere, but cycled between two contact
+#: states (period-2 residual) on the way to 55 deg at the coarse level; there a step that fails
+#: is retried with ``FALLBACK_LINESEARCH`` (a secant minimisation of |F|^2 along the Newton
+#: direction) before it is cut back. ``l2`` everywhere is 3-5 times slower in the coupled
+#: solve (residual decrease ~0.9 per iteration from the first step on; ``bt`` and ``cp`` too).
+SNES_OPTIONS = {
+    "snes_rtol": 1e-8,
+    "snes_atol": 1e-3,
+    "snes_max_it": 60,
+    "snes_linesearch_type": "basic",
+}
+FALLBACK_LINESEARCH = "l2"
+
+#: Secant steps allowed towards one target angle.
+SECANT_STEPS = 30
+
+
+@dataclass
+class StepLog:
+    """Counters of the stepping."""
+
+    steps: int = 0
+    failed_steps: int = 0
+    fallbacks: int = 0
+    newton_iterations: int = 0
+    history: list = field(default_factory=list)
+
+
+# ---- the secant driver ----------------------------------------------------------------------
+
+
+class RotationDriver:
+    """Secant iterations on the actuator's displacement towards each target angle (collective).
+
+    A step whose Newton solve fails is cut back (halved) up to ``max_cutbacks`` times in a row
+    (at most 2 x ``max_cutbacks`` failures per target angle); then the stepping stops.
+
+    Attributes:
+        theta: The current humeral rotation angle (rad).
+        d: The current displacement of the actuator along ``direction`` (m).
+        log: The counters.
+    """
+
+    def __init__(
+        self,
+        system: RigidSystem,
+        contact: Contact,
+        actuator: RigidBody,
+        direction: np.ndarray,
+        angle: Callable[[], float],
+        params: ShoulderParameters,
+        label: str,
+    ):
+        self.system, self.contact, self.actuator = system, contact, actuator
+        self.direction, self.angle, self.label = direction, angle, label
+        self.final = params.final_angle
+        self.tol = params.angle_tolerance
+        self.d_max = params.max_actuation_step
+        self.max_cut = int(params.max_cutbacks)
+        self.log = StepLog()
+        self.theta, self.d = 0.0, 0.0
+        self.slope = None
+        self.previous = None  # (d, snapshot) of the step before the current state
+
+    def start(self) -> None:
+        """Solve the unloaded state and take its angle."""
+        self.system.solve(step=f"{self.label} 0 deg")
+        self.contact.commit()
+        self.theta, self.d = self.angle(), 0.0
+
+    def reach(self, target: float) -> str | None:
+        """Step until the angle is within ``angle_tolerance`` of ``target`` (rad).
+
+        Returns:
+            None, or why the stepping stopped (the state is the last converged one).
+        """
+        limit = self.d_max
+        # cutbacks in a row; failures on the way to this target (a short secant step that
+        # converges resets the cutbacks, not the failures: at a wall the run ends all the same)
+        cuts = fails = 0
+        for _ in range(SECANT_STEPS):
+            if abs(self.theta - target) <= self.tol:
+                break
+            if self.slope is None or self.slope <= 0:
+                dd = 0.25 * self.d_max
+            else:
+                dd = (target - self.theta) / self.slope
+            dd = float(np.clip(dd, -limit, limit))
+            err = self.try_step(target, dd)
+            if err is not None:
+                cuts += 1
+                limit = 0.5 * abs(dd)
+                logger.warning(
+                    "%s: step d = %.3f -> %.3f mm failed (%s); cutback %d/%d",
+                    self.label,
+                    self.d * 1e3,
+                    (self.d + dd) * 1e3,
+                    err.reason,
+                    cuts,
+                    self.max_cut,
+                )
+                fails += 1
+                if cuts > self.max_cut or fails > 2 * self.max_cut:
+                    return self._stalled(target, cuts, fails, err)
+                continue
+            cuts = 0
+            limit = min(self.d_max, 2.0 * limit)  # a cut-back step size grows back on success
+        if abs(self.theta - target) > self.tol:
+            return (
+                f"{self.label}: stopped at {math.degrees(self.theta):.2f} deg of "
+                f"{math.degrees(self.final):.0f} "
+                f"deg: the angle {math.degrees(target):.1f} deg was not reached within "
+                f"{math.degrees(self.tol):.3g} deg in {SECANT_STEPS} secant steps"
+            )
+        return None
+
+    def _stalled(self, target: float, cuts: int, fails: int, err: ConvergenceError) -> str:
+        why = (
+            f"after {self.max_cut} cutbacks"
+            if cuts > self.max_cut
+            else f"in {fails} tries (more than 2 x max_cutbacks)"
+        )
+        return (
+            f"{self.label}: stopped at {math.degrees(self.theta):.2f} deg of "
+            f"{math.degrees(self.final):.0f} deg: the step towards "
+            f"{math.degrees(target):.1f} deg did not converge {why} ({err.reason})"
+        )
+
+    def try_step(self, target: float, dd: float) -> ConvergenceError | None:
+        """Move the actuator by ``dd`` (m) and solve; accept the state or restore the old one.
+
+        Returns:
+            None if the step converged, else the solver's error (the state is restored).
+        """
+        system, d, previous = self.system, self.d, self.previous
+        snap = system.snapshot()
+
+        def predict(snap=snap, dd=dd, d=d, previous=previous):
+            if previous is not None and abs(previous[0] - d) > 0:
+                _extrapolate(system, snap, previous, dd / (d - previous[0]))
+            self.actuator.prescribe((d + dd) * self.direction, np.eye(3))
+
+        predict()
+        try:
+            its = _solve_with_fallback(
+                system, f"{self.label} {math.degrees(target):.1f} deg", snap, predict, self.log
+            )
+        except ConvergenceError as err:
+            system.restore(snap)
+            self.log.failed_steps += 1
+            return err
+        self.contact.commit()
+        self.previous = (d, snap)
+        new = self.angle()
+        if abs(dd) > 0 and abs(new - self.theta) > 1e-12:
+            self.slope = (new - self.theta) / dd
+        self.d, self.theta = d + dd, new
+        self.log.steps += 1
+        self.log.newton_iterations += its
+        self.log.history.append((self.d, self.theta, its))
+        logger.info(
+            "%s: d = %.3f mm, angle %.3f deg (target %.1f), %d Newton iterations",
+            self.label,
+            self.d * 1e3,
+            math.degrees(self.theta),
+            math.degrees(target),
+            its,
+        )
+        return None
+
+
+def drive_rotation(
+    system: RigidSystem,
+    contact: Contact,
+    actuator: RigidBody,
+    direction: np.ndarray,
+    angle: Callable[[], float],
+    params: ShoulderParameters,
+    on_output: Callable[[float], None],
+    label: str,
+) -> tuple[float, StepLog, str | None]:
+    """Move the actuator plate until the humerus reaches each target angle (collective).
+
+    Args:
+        system: The system to solve (its actuator body is prescribed).
+        contact: Its contact terms (committed after each accepted step).
+        actuator: The prescribed plate of the subscapularis origin.
+        direction: Unit direction of its displacement.
+        angle: Callable -> current humeral rotation angle (rad).
+        params: The scene's parameters (angles in rad, lengths in m).
+        on_output: Callable(angle_rad) at 0 and every output angle reached.
+        label: For the progress messages.
+
+    Returns:
+        (final angle in rad, counters, None or the reason the run stopped early).
+    """
+    step = params.angle_step
+    every = params.output_angle
+    driver = RotationDriver(system, contact, actuator, direction, angle, params, label)
+    driver.start()
+    on_output(0.0)
+    n_targets = int(round(params.final_angle / step))
+    for k in range(1, n_targets + 1):
+        target = k * step
+        stop = driver.reach(target)
+        if stop is not None:
+            return driver.theta, driver.log, stop
+        if abs(target / every - round(target / every)) < 1e-9:
+            on_output(target)
+    return driver.theta, driver.log, None
+
+
+def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: StepLog) -> int:
+    """Solve; if Newton ran out of iterations, solve again with the ``FALLBACK_LINESEARCH``.
+
+    The second solve starts from ``snap`` (re-predicted by ``predict()``). Returns the Newton
+    iterations of the solve that converged.
+
+    Raises:
+        ConvergenceError: Both solves failed (the reason of the second).
+    """
+    try:
+        return system.solve(step=step)
+    except ConvergenceError as err:
+        original = system.linesearch
+        if original == FALLBACK_LINESEARCH or "MAX_IT" not in err.reason:
+            raise  # a NaN residual or a failed factorization: the step is too long
+        logger.info(
+            "%s: %s; retried with the %s line search", step, err.reason, FALLBACK_LINESEARCH
+        )
+        log.fallbacks += 1
+        system.restore(snap)
+        predict()
+        system.linesearch = FALLBACK_LINESEARCH
+        try:
+            return system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search)")
+        finally:
+            system.linesearch = original
+
+
+def _extrapolate(system: RigidSystem, current: tuple, previous: tuple, ratio: float) -> None:
+    """Linear predictor: state + ratio x (state - previous state) for u and the free bodies."""
+    u_now, motions_now, _ = current
+    u_old, motions_old, _ = previous[1]
+    ratio = float(np.clip(ratio, -1.0, 1.0))
+    system.u.x.array[:] = u_now + ratio * (u_now - u_old)
+    for body, (t1, R1), (t0, R0) in zip(system.bodies, motions_now, motions_old, strict=True):
+        if body.prescribed:
+            continue
+        step = Rotation.from_matrix(R0.T @ R1).as_rotvec()
+        system.move(
+            body.name, t1 + ratio * (t1 - t0), R1 @ Rotation.from_rotvec(ratio * step).as_matrix()
+        )
+
+
+# ---- one stepping with its outputs ----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Stepping:
+    """What :func:`run_steps` drives and measures.
+
+    Attributes:
+        system: The system solved at each step; ``actuator`` is one of its bodies.
+        contact: Its contact terms.
+        actuator: The prescribed plate of the subscapularis origin.
+        rotation: Callable -> the humerus's current rotation (3 x 3).
+        probe: The per-output measurements on ``u``'s mesh.
+        u: The displacement (m); its P1 interpolation is written to ``<label>.xdmf``.
+        label: Names the progress messages, the fields file and the time-split probes.
+        stage: The resource monitor's stage of the stepping.
+        stress: The scapula's von Mises stress, recorded at each output; None: not recorded.
+        on_output: Called with the angle (rad) at each output, after the series.
+    """
+
+    system: RigidSystem
+    contact: Contact
+    actuator: RigidBody
+    rotation: Callable[[], np.ndarray]
+    probe: Probe
+    u: dolfinx.fem.Function
+    label: str
+    stage: str
+    stress: VonMises | None = None
+    on_output: Callable[[float], None] | None = None
+
+
+class AngleOutputs:
+    """The series and fields recorded at each output angle of a :class:`Stepping` (collective).
+
+    ``data`` collects the outputs that ``shoulder.npz`` keeps (angles, glenoid pressure and
+    shear, the last von Mises field).
+    """
+
+    def __init__(self, model: ShoulderModel, recorder: Recorder, job: Stepping, fields_dir):
+        self.model, self.recorder, self.job = model, recorder, job
+        self.comm = job.system.comm
+        self.cap_centre, self.cap_axis, self.cap_half = model.info["humeral_cap"]
+        self.data = {"angles_deg": [], "glenoid_pressure": [], "glenoid_shear": []}
+        mesh = job.u.function_space.mesh
+        self.writer = dolfinx.io.XDMFFile(self.comm, str(fields_dir / f"{job.label}.xdmf"), "w")
+        self.writer.write_mesh(mesh)
+        P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+        self.u1 = dolfinx.fem.Function(P1, name="displacement")
+
+    def angle(self) -> float:
+        """The humerus's twist about its shaft axis (rad): the progress angle."""
+        return twist_angle(self.job.rotation(), self.model.shaft_axis)
+
+    def swing(self) -> float:
+        """How far the shaft axis itself has turned (rad)."""
+        return swing_angle(self.job.rotation(), self.model.shaft_axis)
+
+    def cap_position(self) -> tuple[float, float]:
+        """Where the glenoid presses on the humeral cartilage (deg; mean and largest)."""
+        return cap_contact_angles(self.job.contact, self.cap_centre, self.cap_axis, self.comm)
+
+    def __call__(self, target: float) -> None:
+        """Record the outputs at target angle ``target`` (rad)."""
+        job, data = self.job, self.data
+        deg = math.degrees(self.angle())
+        p, t = job.probe.glenoid()
+        data["angles_deg"].append(round(math.degrees(target), 6))
+        data["glenoid_pressure"].append(p)
+        data["glenoid_shear"].append(t)
+        x = math.degrees(target)
+        self._joint_series(x, deg, p, t)
+        self._muscle_series(x)
+        if job.on_output is not None:
+            job.on_output(target)
+        if job.stress is not None:
+            record_von_mises(self.recorder, job.stress, x, data, self.comm)
+        self.u1.interpolate(job.u)
+        self.writer.write_function(self.u1, x)
+        logger.info(
+            "%s: output at %.0f deg (measured %.3f deg), max pressure %.3f MPa",
+            job.label,
+            x,
+            deg,
+            (float(p.max()) if len(p) else 0.0) / 1e6,
+        )
+
+    def _joint_series(self, x: float, deg: float, p: np.ndarray, t: np.ndarray) -> None:
+        """The humerus's angles and the contact's pressure, place and resultants at ``x`` deg."""
+        rec = self.recorder
+        both = self.job.contact.resultants()
+        res, wrap = both["glenohumeral"], both.get("muscle_humerus")
+        rec.add_series_point("humeral_angle", x, deg, "deg", "deg")
+        rec.add_series_point("humeral_swing", x, math.degrees(self.swing()), "deg", "deg")
+        mean, top = self.cap_position()
+        rec.add_series_point("humeral_cap_contact_angle", x, mean, "deg", "deg")
+        rec.add_series_point("humeral_cap_contact_angle_max", x, top, "deg", "deg")
+        rec.add_series_point("max_pressure", x, float(p.max()) if len(p) else 0.0, "deg", "Pa")
+        rec.add_series_point("max_shear", x, float(t.max()) if len(t) else 0.0, "deg", "Pa")
+        rec.add_series_point("contact_force", x, float(np.linalg.norm(res["force"])), "deg", "N")
+        rec.add_series_point("contact_area", x, float(res["area"]), "deg", "m^2")
+        if wrap is not None:  # the rotator cuff on the humeral head: force, deepest overlap
+            rec.add_series_point(
+                "muscle_bone_contact_force", x, float(np.linalg.norm(wrap["force"])), "deg", "N"
+            )
+            rec.add_series_point(
+                "muscle_bone_penetration", x, float(wrap["max_penetration"]), "deg", "m"
+            )
+
+    def _muscle_series(self, x: float) -> None:
+        """The muscles' forces and the actuator's displacement at ``x`` deg."""
+        forces = self.job.probe.muscle_forces()
+        for m, f in forces.items():
+            self.recorder.add_series_point(f"{m}_force", x, float(np.linalg.norm(f)), "deg", "N")
+        target = self.job.actuator._target
+        self.recorder.add_series_point(
+            "actuation", x, float(np.linalg.norm(target[0]) if target else 0.0), "deg", "m"
+        )
+
+    def stall_note(self, final: float) -> str:
+        """Where the contact and the shaft had got to at the last state reached (``final``, rad)."""
+        mean, top = self.cap_position()
+        return (
+            f"; at {math.degrees(final):.2f} deg the glenoid pressed on the humeral cartilage up "
+            f"to {top:.1f} deg from its axis (force-weighted mean {mean:.1f} deg; the cartilage "
+            f"ends at {math.degrees(self.cap_half):.1f} deg) and the shaft had swung "
+            f"{math.degrees(self.swing()):.1f} deg"
+        )
+
+    def close(self) -> None:
+        """Close the fields file."""
+        self.writer.close()
+
+
+def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
+    """Drive the rotation, recording every output angle (collective).
+
+    ``job.rotation()`` is the humerus's current rotation: its twist about the shaft axis is the
+    progress angle, its swing (how far the shaft axis itself turns) is recorded with it.
+
+    Returns:
+        The outputs for ``shoulder.npz`` (:func:`outputs.save_results`), with the final angle
+        (deg) and the stop message (None if every angle was reached).
+    """
+    recorder = run.recorder
+    cap_half = model.info["humeral_cap"][2]
+    recorder.set_probe("humeral_cap_half_angle_deg", math.degrees(cap_half), "deg")
+    direction = unit(ACTUATION_DIRECTION)
+    outputs = AngleOutputs(model, recorder, job, run.fields)
+    with run.monitor.stage(job.stage):
+        final, log, stop = drive_rotation(
+            job.system,
+            job.contact,
+            job.actuator,
+            direction,
+            outputs.angle,
+            model.params,
+            outputs,
+            job.label,
+        )
+    outputs.close()
+    recorder.set_probe("final_angle_deg", math.degrees(final), "deg")
+    recorder.set_probe("steps", log.steps, "1")
+    recorder.set_probe("failed_steps", log.failed_steps, "1")
+    recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
+    recorder.set_probe("newton_iterations", log.newton_iterations, "1")
+    recorder.add_solver_counts(job.system.stats, StepperStats(log.steps, log.failed_steps))
+    record_time_split(recorder, job.label, job.system, job.contact)
+    if stop is not None:
+        stop += outputs.stall_note(final)  # at the last converged state
+        recorder.set_status("incomplete", stop)
+        logger.error("%s", stop)
+    data = outputs.data
+    data["final_angle_deg"] = math.degrees(final)
+    data["glenoid_points"] = job.probe.glenoid_points
+    data["stop"] = stop
+    return data

@@ -10,10 +10,12 @@ apply to the scapula, and the scapula's rigid motion (:class:`Transfer`); part 2
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import dolfinx
 import numpy as np
 import ufl
+from mpi4py import MPI
 
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.engine.springs import GROUND, Spring
@@ -77,7 +79,7 @@ class Transfer:
     rotation: list = field(default_factory=list)
     humerus_rotation: list = field(default_factory=list)
 
-    def save(self, path, comm) -> None:
+    def save(self, path: Path, comm: MPI.Comm) -> None:
         """Write ``transfer.npz`` (collective)."""
         save_npz(
             path,

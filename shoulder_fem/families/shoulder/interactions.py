@@ -133,7 +133,9 @@ def spring_layout(params: ShoulderParameters) -> list[dict]:
     return out
 
 
-def spring_plates(mesh, facet_tags, springs: list[dict], length: float):
+def spring_plates(
+    mesh, facet_tags, springs: list[dict], length: float
+) -> tuple[list[RigidBody], list[Tie], list[Spring]]:
     """Rigid plates tied to the springs' plate surfaces (one per plate), and their springs.
 
     Each spring runs from its patch's centroid, on its plate, to the ground, ``length`` (m)
@@ -231,7 +233,9 @@ def modulus_factors(params: ShoulderParameters) -> dict[str, float]:
     return {"scapula": params.scapula_modulus_factor, "humerus": params.humerus_modulus_factor}
 
 
-def bone_fields(mesh, cell_tags, image, params: ShoulderParameters):
+def bone_fields(
+    mesh, cell_tags, image, params: ShoulderParameters
+) -> tuple[dolfinx.fem.Function, ufl.core.expr.Expr]:
     """(density kg/m^3 as a P1 field, E Pa as a UFL field) of the bones.
 
     Both sampled from the image at the mesh nodes (E = E0 (rho/rho0)^2); E times each bone's

@@ -139,7 +139,7 @@ def dofs(model: ShoulderModel) -> int:
     return sum(_vector_dofs(m.mesh) for m in model.meshes.values())
 
 
-def head_tags(model: ShoulderModel, mesh, facet_tags):
+def head_tags(model: ShoulderModel, mesh, facet_tags) -> dolfinx.mesh.MeshTags:
     """The facet tags, with the surfaces of muscle-bone contact if it is on (collective)."""
     if not model.params.humeral_head_contact:
         return facet_tags

@@ -9,6 +9,7 @@ serves every angle (chord iterations; only the springs' geometric terms are nonl
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import dolfinx
 import numpy as np
@@ -31,6 +32,9 @@ from shoulder_fem.families.shoulder.outputs import record_von_mises
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.meshes import shoulder as S
+
+if TYPE_CHECKING:
+    from shoulder_fem.families.shoulder.decoupled import Transfer
 
 __all__ = ["CHORD_OPTIONS", "FrameInertia", "NodalLoads", "finite_differences", "run_part2"]
 
@@ -82,7 +86,9 @@ class NodalLoads:
         return A
 
 
-def finite_differences(times, translations, rotations):
+def finite_differences(
+    times: np.ndarray, translations: np.ndarray, rotations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per output: velocity, acceleration (spatial) and body-frame Ω, dΩ/dt (backward).
 
     ``times`` (s), ``translations`` (m, (n, 3)), ``rotations`` ((n, 3, 3)); the first output's
@@ -172,7 +178,9 @@ class FrameInertia:
         return self._assemble(self.coriolis_forms)
 
 
-def _suspension(mesh, ft, layout: list[dict], length: float):
+def _suspension(
+    mesh, ft, layout: list[dict], length: float
+) -> tuple[list[RigidBody], list[Tie], list[Spring], list[Spring]]:
     """The scapula's springs, each on a rigid plate tied to its patch (collective).
 
     The springs linearised about the recorded pose: their force there (floating-frame
@@ -200,7 +208,9 @@ def _suspension(mesh, ft, layout: list[dict], length: float):
 class _Part2:
     """The scapula's floating-frame problem over part 1's output angles (collective)."""
 
-    def __init__(self, model: ShoulderModel, run: RunContext, transfer, layout: list[dict]):
+    def __init__(
+        self, model: ShoulderModel, run: RunContext, transfer: Transfer, layout: list[dict]
+    ):
         p = model.params
         sm = model.meshes["scapula"]
         self.mesh, ct_, self.ft = mesh, ct_, ft = sm.mesh, sm.cell_tags, sm.facet_tags
@@ -310,7 +320,9 @@ class _Part2:
         self.system.destroy()
 
 
-def run_part2(model: ShoulderModel, run: RunContext, transfer, layout: list[dict], data: dict):
+def run_part2(
+    model: ShoulderModel, run: RunContext, transfer: Transfer, layout: list[dict], data: dict
+) -> tuple[VonMises, dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags]:
     """The scapula in its floating frame, linear elastic, one factorization (collective).
 
     Args:

@@ -31,6 +31,7 @@ from shoulder_fem.families.shoulder.model import ShoulderModel
 from shoulder_fem.families.shoulder.outputs import record_von_mises
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
+from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.meshes import shoulder as S
 
 if TYPE_CHECKING:
@@ -248,8 +249,7 @@ class _Part2:
         self.T = np.asarray(transfer.translation)
         self.R = np.asarray(transfer.rotation)
         _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
-        self.writer = dolfinx.io.XDMFFile(self.comm, str(run.fields / "part2.xdmf"), "w")
-        self.writer.write_mesh(mesh)
+        self.writer = FieldWriter(self.comm, mesh, run.fields / "part2.xdmf")
         P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
         self.u1 = dolfinx.fem.Function(P1, name="displacement")
         self.iterations = 0
@@ -305,13 +305,12 @@ class _Part2:
         )
         record_von_mises(rec, self.stress_vm, x, data, comm)
         self.u1.interpolate(self.u)
-        self.writer.write_function(self.u1, x)
+        self.writer.write([self.u1], x)
         self.u_prev.x.array[:] = self.u.x.array
 
     def finish(self) -> None:
-        """Close the fields file, record the probes and counters, free the solver."""
+        """Record the probes and counters, free the solver."""
         rec = self.recorder
-        self.writer.close()
         rec.set_probe("transfer_equilibrium_residual", self.worst, "1")
         rec.set_probe("part2_factorizations", self.system.stats.factorizations, "1")
         rec.set_probe("part2_iterations", self.iterations, "1")
@@ -336,7 +335,10 @@ def run_part2(
         (the von Mises operator, the scapula mesh, its facet tags), for ``shoulder.npz``.
     """
     part2 = _Part2(model, run, transfer, layout)
-    for k, target in enumerate(part2.angles):
-        part2.step(k, target, data)
+    try:
+        for k, target in enumerate(part2.angles):
+            part2.step(k, target, data)
+    finally:
+        part2.writer.close()
     part2.finish()
     return part2.stress_vm, part2.mesh, part2.ft

@@ -26,6 +26,7 @@ from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, un
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
 from shoulder_fem.families.shoulder.outputs import record_time_split, record_von_mises
+from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.io.results import Recorder
 
 __all__ = [
@@ -348,8 +349,7 @@ class AngleOutputs:
         self.cap_centre, self.cap_axis, self.cap_half = model.info["humeral_cap"]
         self.data = {"angles_deg": [], "glenoid_pressure": [], "glenoid_shear": []}
         mesh = job.u.function_space.mesh
-        self.writer = dolfinx.io.XDMFFile(self.comm, str(fields_dir / f"{job.label}.xdmf"), "w")
-        self.writer.write_mesh(mesh)
+        self.writer = FieldWriter(self.comm, mesh, fields_dir / f"{job.label}.xdmf")
         P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
         self.u1 = dolfinx.fem.Function(P1, name="displacement")
 
@@ -381,7 +381,7 @@ class AngleOutputs:
         if job.stress is not None:
             record_von_mises(self.recorder, job.stress, x, data, self.comm)
         self.u1.interpolate(job.u)
-        self.writer.write_function(self.u1, x)
+        self.writer.write([self.u1], x)
         logger.info(
             "%s: output at %.0f deg (measured %.3f deg), max pressure %.3f MPa",
             job.label,
@@ -417,7 +417,7 @@ class AngleOutputs:
         forces = self.job.probe.muscle_forces()
         for m, f in forces.items():
             self.recorder.add_series_point(f"{m}_force", x, float(np.linalg.norm(f)), "deg", "N")
-        target = self.job.actuator._target
+        target = self.job.actuator.target
         self.recorder.add_series_point(
             "actuation", x, float(np.linalg.norm(target[0]) if target else 0.0), "deg", "m"
         )
@@ -452,18 +452,20 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("humeral_cap_half_angle_deg", math.degrees(cap_half), "deg")
     direction = unit(ACTUATION_DIRECTION)
     outputs = AngleOutputs(model, recorder, job, run.fields)
-    with run.monitor.stage(job.stage):
-        final, log, stop = drive_rotation(
-            job.system,
-            job.contact,
-            job.actuator,
-            direction,
-            outputs.angle,
-            model.params,
-            outputs,
-            job.label,
-        )
-    outputs.close()
+    try:
+        with run.monitor.stage(job.stage):
+            final, log, stop = drive_rotation(
+                job.system,
+                job.contact,
+                job.actuator,
+                direction,
+                outputs.angle,
+                model.params,
+                outputs,
+                job.label,
+            )
+    finally:
+        outputs.close()
     recorder.set_probe("final_angle_deg", math.degrees(final), "deg")
     recorder.set_probe("steps", log.steps, "1")
     recorder.set_probe("failed_steps", log.failed_steps, "1")

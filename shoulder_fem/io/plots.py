@@ -112,11 +112,12 @@ def plot_pressure_profile(
     theory: tuple[np.ndarray, np.ndarray],
     path: Path,
     title: str = "contact pressure",
+    fitted: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Path:
     """Contact pressure at the contact points against their distance from the axis.
 
-    With the analytic profile ``theory`` = (r, p), e.g. Hertz's p0 sqrt(1 - r²/a²); SI in,
-    mm and MPa on the axes.
+    With the analytic profile ``theory`` = (r, p), e.g. Hertz's p0 sqrt(1 - r²/a²), and
+    optionally the same profile ``fitted`` to the points; SI in, mm and MPa on the axes.
     """
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     ax.plot(
@@ -130,6 +131,15 @@ def plot_pressure_profile(
         lw=1.5,
         label="Hertz",
     )
+    if fitted is not None:
+        ax.plot(
+            np.asarray(fitted[0]) * 1e3,
+            np.asarray(fitted[1]) * 1e-6,
+            "--",
+            color="C3",
+            lw=1.2,
+            label="Hertz profile fitted to the points",
+        )
     ax.set_xlabel("distance from the axis (mm)")
     ax.set_ylabel("contact pressure (MPa)")
     ax.set_title(title)

@@ -4,7 +4,8 @@ Modules: ``masters`` (what a slave presses on: mesh surfaces and rigid masters),
 pair and its pressure law), ``geometry`` (triangle rules, closest points, clipping),
 ``surfaces`` (tagged facets, gathered mesh masters), ``points`` (contact points and their
 pairing), ``evaluation`` (gaps, pressures, friction), ``jacobian`` (the tangent and its
-sparsity), ``output`` (resultants, fields) and ``assembly`` (:class:`Contact`, the driver).
+sparsity), ``segment_tangent`` (the consistent tangent of segment integration), ``output``
+(resultants, fields) and ``assembly`` (:class:`Contact`, the driver).
 Simplices only (triangular facets of tetrahedra), P1 or P2 displacement.
 """
 

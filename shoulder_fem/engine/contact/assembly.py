@@ -241,8 +241,19 @@ class Contact:
         """The contact tangent as its own AIJ matrix with A's layout (collective)."""
         self._ensure()
         t0 = time.perf_counter()
+        segments = None
+        if self.mesh_integration == "segments":
+            segments = dict(
+                x_nodes=self._current(), pieces=self._pieces, rule=self._seg_rule, lam=self._lam
+            )
         rows, cols, vals = jacobian_triplets(
-            self.pairs, self._state, self._slaves, self._masters, self._node_rows, self._bc_global
+            self.pairs,
+            self._state,
+            self._slaves,
+            self._masters,
+            self._node_rows,
+            self._bc_global,
+            segments,
         )
         K, self._pattern_keys = triplet_matrix(A, rows, cols, vals, self.comm)
         self.stats.assembly_s += time.perf_counter() - t0

@@ -80,7 +80,8 @@ def evaluate_pair(
         (positions, m), ``n`` (master normals), ``g`` (gaps, m), ``p`` (pressures, Pa), ``k``
         (-dp/dg, Pa/m), ``t`` (friction tractions, Pa), ``s`` (slips, m), ``active`` (p > 0),
         ``dndx`` (rigid master's dn/dx or None), ``m_idx``/``bary`` (mesh master nodes and
-        weights, or None), ``on`` (points that can touch the master).
+        weights, or None), ``on`` (points that can touch the master), ``piece``/``m_tri``
+        (segments: the slave facet's piece and the master triangle of each point, or None).
     """
     f, N = pts["facet"], pts["N"]
     xq = np.einsum("qa,qai->qi", N, x_nodes[sl.nodes[f]])
@@ -111,6 +112,8 @@ def evaluate_pair(
         m_idx=m_idx,
         bary=bary,
         on=on,
+        piece=pts.get("piece"),
+        m_tri=pts.get("m_tri"),
     )
 
 

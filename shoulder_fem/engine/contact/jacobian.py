@@ -3,9 +3,11 @@
 The tangent includes the normal penalty term (eps n n), the rotation of an analytic master's
 normal (the curvature term p dn/dx, exact for planes and spheres), the friction terms, and for
 mesh masters the rotation of the master facet's normal and the sliding of the contact point
-over it. Left out: the change of the segments' areas as the surfaces slide and the normal of a
-point projected on an edge (points mode); they cost a few Newton iterations while the active
-set settles, not the final convergence.
+over it. A frictionless pair integrated in segments gets the consistent tangent of its
+segments instead (:mod:`~.segment_tangent`: the change of the segments as the surfaces slide
+is half of the contact's tangent in a joint's sliding mode; without it Newton converged
+linearly). Left out: the change of the segments with friction, and the normal of a point
+projected on an edge (points mode).
 
 The couplings lie outside dolfinx's sparsity pattern. They are routed to the owning rank of each
 row, assembled into their own exactly preallocated AIJ matrix, and added to the FE Jacobian;
@@ -24,6 +26,7 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.contact.evaluation import couplings
 from shoulder_fem.engine.contact.pair import ContactPair
+from shoulder_fem.engine.contact.segment_tangent import segment_tangent_blocks
 from shoulder_fem.engine.contact.surfaces import Facets, MasterMesh
 from shoulder_fem.engine.so3 import hats
 
@@ -114,15 +117,34 @@ def jacobian_triplets(
     masters: Sequence[MasterMesh | None],
     node_rows: np.ndarray,
     bc_global: np.ndarray,
+    segments: dict | None = None,
 ):
-    """(rows, cols, vals) of the contact tangent on this rank, in global rows and columns."""
+    """(rows, cols, vals) of the contact tangent on this rank, in global rows and columns.
+
+    ``segments``: ``x_nodes`` (current node positions), ``pieces``, ``rule`` and ``lam`` (per
+    pair) of segment integration; with it a frictionless pair integrated in segments gets the
+    consistent tangent of its segments (:mod:`~.segment_tangent`).
+    """
     rows, cols, vals = [], [], []
-    for pair, st, sl, m in zip(pairs, states, slaves, masters, strict=True):
+    for i, (pair, st, sl, m) in enumerate(zip(pairs, states, slaves, masters, strict=True)):
         act, pair_rows, coef = couplings(st, sl, m, node_rows)
         if len(act) == 0:
             continue
-        blk = _pair_blocks(pair, st, m, act, coef)
-        r, c, v = _expand(blk, pair_rows, coef.shape[1], bc_global)
+        if segments is not None and st.get("m_tri") is not None and pair.friction == 0:
+            blk, pair_rows = segment_tangent_blocks(
+                pair,
+                st,
+                sl,
+                m,
+                segments["x_nodes"],
+                segments["pieces"],
+                segments["rule"],
+                segments["lam"][i],
+                node_rows,
+            )
+        else:
+            blk = _pair_blocks(pair, st, m, act, coef)
+        r, c, v = _expand(blk, pair_rows, blk.shape[1], bc_global)
         rows.append(r)
         cols.append(c)
         vals.append(v)

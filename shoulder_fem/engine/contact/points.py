@@ -10,7 +10,8 @@ k-d tree on the master triangle centroids), which is what large sliding needs.
 
 A set of points is a dict: ``facet`` (slave facet of each point), ``N`` (the facet's shape
 functions there), ``N1`` (its linear functions), ``W`` (weights, m² of reference area) and, for
-segments, ``m_tri`` (master triangle) and ``bary`` (barycentric weights on it).
+segments, ``piece`` (the facet's flat piece), ``m_tri`` (master triangle) and ``bary``
+(barycentric weights on it).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ def _no_segments(nn: int) -> dict:
     """An empty set of segment points (slave facets of ``nn`` nodes)."""
     return dict(
         facet=np.zeros(0, dtype=np.int64),
+        piece=np.zeros(0, dtype=np.int64),
         N=np.zeros((0, nn)),
         N1=np.zeros((0, 3)),
         W=np.zeros(0),
@@ -126,7 +128,9 @@ def segment_points(
     N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[cols])
     if nn == 6:  # P2: the slave's own quadratic functions (consistent loads)
         N = p2_shape(N1)
-    return dict(facet=piece_facet[pj], N=N, N1=N1, W=W, m_tri=t[rr], bary=beta)
+    return dict(
+        facet=piece_facet[pj], piece=piece_id[pj], N=N, N1=N1, W=W, m_tri=t[rr], bary=beta
+    )
 
 
 def segment_gaps(m: MasterMesh, pts: dict, xq: np.ndarray):

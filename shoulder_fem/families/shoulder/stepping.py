@@ -47,10 +47,11 @@ logger = logging.getLogger(__name__)
 ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 
 #: Newton settings of the nonlinear solves. Joint forces are ~10-100 N: atol 1e-3 N is 1e-5 of
-#: them. The penalty contact between the faceted surfaces converges linearly at the end (rate
-#: ~0.5-0.85 per iteration: the change of the segments' areas is not in the tangent). Full
-#: Newton steps (``basic``) are the fastest almost everywhere, but cycled between two contact
-#: states (period-2 residual) on the way to 55 deg at the coarse level; there a step that fails
+#: them. Newton converges quadratically to the end: the contact's tangent includes the change
+#: of its segments as the surfaces slide (:mod:`shoulder_fem.engine.contact.segment_tangent`;
+#: without it the tail was linear, 0.44-0.56 per iteration at coarse). Full Newton steps
+#: (``basic``) are the fastest almost everywhere, but cycled between two contact states
+#: (period-2 residual) on the way to 55 deg at the coarse level; there a step that fails
 #: is retried with ``FALLBACK_LINESEARCH`` (a secant minimisation of |F|^2 along the Newton
 #: direction) before it is cut back. ``l2`` everywhere is 3-5 times slower in the coupled
 #: solve (residual decrease ~0.9 per iteration from the first step on; ``bt`` and ``cp`` too).

@@ -246,15 +246,8 @@ class Contact:
             segments = dict(
                 x_nodes=self._current(), pieces=self._pieces, rule=self._seg_rule, lam=self._lam
             )
-        rows, cols, vals = jacobian_triplets(
-            self.pairs,
-            self._state,
-            self._slaves,
-            self._masters,
-            self._node_rows,
-            self._bc_global,
-            segments,
-        )
+        state = (self.pairs, self._state, self._slaves, self._masters, self._node_rows)
+        rows, cols, vals = jacobian_triplets(*state, self._bc_global, segments)
         K, self._pattern_keys = triplet_matrix(A, rows, cols, vals, self.comm)
         self.stats.assembly_s += time.perf_counter() - t0
         return K
@@ -349,12 +342,7 @@ class Contact:
         return output.master_points(self._state[i], self._masters[i])
 
     def point_state(self, index: int) -> dict:
-        """The contact points of pair ``index`` at the last evaluation (this rank's, read only).
-
-        Keys: ``xq`` positions (m, (n, 3)), ``p`` normal pressures (Pa, (n,)), ``active``
-        flags, ``m_idx`` the master facet of each point (mesh masters), and the other
-        per-point arrays of the evaluation.
-        """
+        """Pair ``index``'s points at the last evaluation: ``xq`` (m), ``p`` (Pa), ``active``."""
         return self._state[index]
 
     def record(self, recorder, prefix: str = "", point: Sequence[float] = (0.0, 0.0, 0.0)) -> None:

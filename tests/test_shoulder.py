@@ -520,8 +520,8 @@ def test_part1_newton_converges_quadratically_to_the_end():
     actuator = RigidBody("actuator", origin, prescribed=True)
     bodies = [RigidBody("humerus", np.zeros(3)), RigidBody("scapula", glenoid), actuator]
     layout = SI.spring_layout(p)
-    springs = SD._part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
-    ties, tied = SD._part1_ties(ft, cells, p)
+    springs = SD.part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
+    ties, tied = SD.part1_ties(ft, cells, p)
     options = SNES_OPTIONS | {"snes_atol": 1e-9, "snes_rtol": 1e-14, "snes_stol": 0.0}
     system = RigidSystem(
         bodies,

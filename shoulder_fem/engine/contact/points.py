@@ -128,9 +128,7 @@ def segment_points(
     N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[cols])
     if nn == 6:  # P2: the slave's own quadratic functions (consistent loads)
         N = p2_shape(N1)
-    return dict(
-        facet=piece_facet[pj], piece=piece_id[pj], N=N, N1=N1, W=W, m_tri=t[rr], bary=beta
-    )
+    return dict(facet=piece_facet[pj], piece=piece_id[pj], N=N, N1=N1, W=W, m_tri=t[rr], bary=beta)
 
 
 def segment_gaps(m: MasterMesh, pts: dict, xq: np.ndarray):

@@ -132,7 +132,7 @@ class _TransferRecorder:
         tr.humerus_rotation.append(self.humerus.rotation.copy())
 
 
-def _part1_springs(surf, tags, layout: list[dict], length: float) -> list[Spring]:
+def part1_springs(surf, tags, layout: list[dict], length: float) -> list[Spring]:
     """The flexible elements on the rigid bones: from their patch's centroid to the ground."""
     springs = []
     for sp in layout:
@@ -144,7 +144,7 @@ def _part1_springs(surf, tags, layout: list[dict], length: float) -> list[Spring
     return springs
 
 
-def _part1_ties(ft, cell_tags, params: ShoulderParameters) -> tuple[list[Tie], dict]:
+def part1_ties(ft, cell_tags, params: ShoulderParameters) -> tuple[list[Tie], dict]:
     """The soft tissues' surfaces tied to the rigid bones and the actuator, and their tags."""
     ties = [Tie("humerus", n) for n in HUMERUS_TIES]
     ties += [Tie("scapula", n) for n in SCAPULA_LOAD_SURFACES]
@@ -179,8 +179,8 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
     scapula = RigidBody("scapula", scapula_ref)
     origin = patch_centroid(mesh, ft, S.MARKERS["subscapularis_origin"].id)
     actuator = RigidBody("actuator", origin, prescribed=True)
-    springs = _part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
-    ties, tied = _part1_ties(ft, ct_, p)
+    springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
+    ties, tied = part1_ties(ft, ct_, p)
     system = RigidSystem(
         [humerus, scapula, actuator],
         springs,

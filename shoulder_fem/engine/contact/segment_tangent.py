@@ -39,6 +39,8 @@ __all__ = ["FD_STEP", "SegmentPairs", "segment_pair_forces", "segment_tangent_bl
 
 #: Central-difference step (m) of the node coordinates.
 FD_STEP = 1e-8
+#: Perturbed pair copies evaluated at once (memory bound; every pair is independent).
+CHUNK_ROWS = 20000
 
 
 class SegmentPairs:
@@ -75,6 +77,15 @@ class SegmentPairs:
 
     def __len__(self) -> int:
         return len(self.facet)
+
+    def select(self, rows: slice) -> SegmentPairs:
+        """The pairs ``rows`` only."""
+        out = object.__new__(SegmentPairs)
+        out.facet, out.cols = self.facet[rows], self.cols[rows]
+        out.m_nodes, out.m_vert = self.m_nodes[rows], self.m_vert[rows]
+        out.tri_mu = None if self.tri_mu is None else self.tri_mu[rows]
+        out.ref_area = self.ref_area[rows]
+        return out
 
     def tiled(self, copies: int) -> SegmentPairs:
         """The same pairs ``copies`` times over (one evaluation of many perturbed states)."""
@@ -168,10 +179,15 @@ def segment_tangent_blocks(
     for i in range(3):
         steps[0, idx, i, idx, i] = FD_STEP
         steps[1, idx, i, idx, i] = -FD_STEP
-    Yall = (Y[None] + steps.reshape(-1, 1, k, 3)).reshape(-1, k, 3)  # (2*3k*M, k, 3)
-    lam_f = np.tile(lam[pp.facet], (6 * k, 1))
-    R = segment_pair_forces(pair, pp.tiled(6 * k), Yall, lam_f, rule, ns_nodes)
-    R = R.reshape(2, k, 3, M, k, 3)
-    blk = np.moveaxis((R[0] - R[1]) / (2 * FD_STEP), (0, 1), (3, 4))  # (M, k, 3, k, 3)
+    blk = np.empty((M, k, 3, k, 3))
+    chunk = max(1, CHUNK_ROWS // (6 * k))  # pairs per evaluation: bounds the memory
+    for s in range(0, M, chunk):
+        sub = pp.select(slice(s, s + chunk))
+        Ys = Y[s : s + chunk]
+        Yall = (Ys[None] + steps.reshape(-1, 1, k, 3)).reshape(-1, k, 3)  # (2*3k*m, k, 3)
+        lam_f = np.tile(lam[sub.facet], (6 * k, 1))
+        R = segment_pair_forces(pair, sub.tiled(6 * k), Yall, lam_f, rule, ns_nodes)
+        R = R.reshape(2, k, 3, len(Ys), k, 3)
+        blk[s : s + chunk] = np.moveaxis((R[0] - R[1]) / (2 * FD_STEP), (0, 1), (3, 4))
     rows = np.concatenate([node_rows[sl.nodes[pp.facet]], m.rows[pp.m_nodes]], axis=1)
     return blk, rows

@@ -131,6 +131,7 @@ class Contact:
         self._bc_global = _bc_rows(bcs, self._w_l2g, wbs, self.comm)
         self._build_surfaces(facet_tags, rule)
         self._merged = np.zeros(0, dtype=np.int64)
+        self._last_tangent: PETSc.Mat | None = None
         self._last_u = None
         self._x_prev = None
         self.commit()
@@ -237,8 +238,8 @@ class Contact:
         b.assemblyEnd()
         self.stats.assembly_s += time.perf_counter() - t0
 
-    def jacobian_matrix(self, A: PETSc.Mat) -> PETSc.Mat:
-        """The contact tangent as its own AIJ matrix with A's layout (collective)."""
+    def jacobian_matrix(self, A: PETSc.Mat, reuse: PETSc.Mat | None = None) -> PETSc.Mat:
+        """The contact tangent, an AIJ matrix of A's layout: ``reuse`` (the last) if its pattern."""
         self._ensure()
         t0 = time.perf_counter()
         segments = None
@@ -248,7 +249,10 @@ class Contact:
             )
         state = (self.pairs, self._state, self._slaves, self._masters, self._node_rows)
         rows, cols, vals = jacobian_triplets(*state, self._bc_global, segments)
-        K, self._pattern_keys = triplet_matrix(A, rows, cols, vals, self.comm)
+        mine = reuse is not None and reuse is self._last_tangent
+        last = (reuse, self._pattern_keys) if mine else None
+        K, self._pattern_keys = triplet_matrix(A, rows, cols, vals, self.comm, last)
+        self._last_tangent = K
         self.stats.assembly_s += time.perf_counter() - t0
         return K
 

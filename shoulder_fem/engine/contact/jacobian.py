@@ -168,8 +168,17 @@ def _route_to_owners(A: PETSc.Mat, rows, cols, vals, comm: MPI.Comm):
     return rows, cols, vals
 
 
-def triplet_matrix(A: PETSc.Mat, rows, cols, vals, comm: MPI.Comm):
+def triplet_matrix(A: PETSc.Mat, rows, cols, vals, comm: MPI.Comm, reuse=None):
     """Triplets (any rank) as an exactly preallocated AIJ matrix with A's layout (collective).
+
+    Args:
+        A: The matrix whose layout K takes.
+        rows: Global rows of the triplets.
+        cols: Global columns of the triplets.
+        vals: Values of the triplets (duplicates are summed).
+        comm: A's communicator.
+        reuse: ``(K, keys)`` of an earlier call, or ``None``: when the triplets' pattern is
+            ``keys`` on every rank, K is refilled in place and returned (no new matrix).
 
     Returns:
         (K, keys): the matrix and the global (row * ncols + col) keys of its local nonzeros.
@@ -186,6 +195,13 @@ def triplet_matrix(A: PETSc.Mat, rows, cols, vals, comm: MPI.Comm):
     indptr = csr.indptr.astype(PETSc.IntType)
     uc = csr.indices.astype(np.int64)
     ur = r0 + np.repeat(np.arange(nloc), np.diff(csr.indptr))
+    keys = ur.astype(np.int64) * ncol + uc
+    if reuse is not None and comm.allreduce(np.array_equal(keys, reuse[1]), op=MPI.LAND):
+        K = reuse[0]  # the same pattern: every entry is overwritten
+        if len(uc):
+            K.setValuesCSR(indptr, uc.astype(PETSc.IntType), csr.data)
+        K.assemble()
+        return K, reuse[1]
     diag = (uc >= c0) & (uc < c1)
     d_nnz = np.bincount(ur[diag] - r0, minlength=nloc).astype(PETSc.IntType)
     o_nnz = np.bincount(ur[~diag] - r0, minlength=nloc).astype(PETSc.IntType)
@@ -194,7 +210,7 @@ def triplet_matrix(A: PETSc.Mat, rows, cols, vals, comm: MPI.Comm):
     if len(uc):
         K.setValuesCSR(indptr, uc.astype(PETSc.IntType), csr.data)
     K.assemble()
-    return K, ur.astype(np.int64) * ncol + uc
+    return K, keys
 
 
 def local_keys(K: PETSc.Mat) -> np.ndarray:

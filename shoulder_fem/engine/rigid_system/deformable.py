@@ -55,9 +55,12 @@ class DeformablePart:
         #: The assembled residual (N) and tangent (N/m), without conditions.
         self.F = fem_petsc.create_vector(self.F_form)
         self.K = fem_petsc.create_matrix(self.J_form)
+        #: How many times F has been assembled (tells a caller whether F is still its own).
+        self.residual_assemblies = 0
 
     def assemble_residual(self) -> None:
         """Assemble F at the current ``u`` (contact added; ghosts updated)."""
+        self.residual_assemblies += 1
         with self.F.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.F, self.F_form)
@@ -72,9 +75,13 @@ class DeformablePart:
         fem_petsc.assemble_matrix(self.K, self.J_form)
         self.K.assemble()
 
-    def contact_tangent(self) -> PETSc.Mat:
-        """A new matrix of the contact tangent (N/m) at the current state (caller destroys it)."""
-        return self.contact.jacobian_matrix(self.K)
+    def contact_tangent(self, reuse: PETSc.Mat | None = None) -> PETSc.Mat:
+        """The contact tangent (N/m) at the current state: ``reuse`` refilled, or a new matrix.
+
+        ``reuse``: the matrix returned last; it comes back (refilled) while the pattern is the
+        same, else a new matrix is returned (the caller destroys what it no longer uses).
+        """
+        return self.contact.jacobian_matrix(self.K, reuse)
 
     def free_values(self) -> np.ndarray:
         """The displacement DOFs of the free owned nodes, in the layout's order (m)."""

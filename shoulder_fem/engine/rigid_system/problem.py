@@ -13,6 +13,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.engine.rigid_system.bodies import BodyBalance, RigidBody, Tie
@@ -33,7 +34,7 @@ from shoulder_fem.engine.so3 import exp_so3, log_so3
 from shoulder_fem.engine.solver import SolveStats
 from shoulder_fem.engine.springs import Spring, spring_response
 
-__all__ = ["ReducedProblem", "RigidSolveStats", "timed"]
+__all__ = ["ContactProduct", "ReducedProblem", "RigidSolveStats", "timed"]
 
 
 @contextlib.contextmanager
@@ -63,6 +64,41 @@ class RigidSolveStats(SolveStats):
     jacobian_s: float = 0.0
     fe_assembly_s: float = 0.0
     reduction_s: float = 0.0
+
+
+class ContactProduct:
+    """The contact tangent's Pᵀ K_c P added to a Jacobian.
+
+    K_c and the product are reused (refilled; numeric product only) while K_c's pattern holds.
+    """
+
+    def __init__(self, comm) -> None:
+        self.comm = comm
+        self.K: PETSc.Mat | None = None
+        self.C: PETSc.Mat | None = None
+        #: The entries merged into the Jacobian's pattern so far (:func:`add_to_pattern`).
+        self.keys = np.zeros(0, dtype=np.int64)
+
+    def add(self, J: PETSc.Mat, fe: DeformablePart, P: PETSc.Mat, stats: SolveStats) -> None:
+        """J += Pᵀ K_c P at the current state (K_c from ``fe``; collective)."""
+        from shoulder_fem.engine.contact import add_to_pattern
+
+        K = fe.contact_tangent(self.K)
+        with timed(stats, "reduction_s"):
+            if K is self.K:  # the last one's pattern: so is the product's
+                K.PtAP(P, self.C)
+                J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+                return
+            self.destroy()
+            self.K, self.C = K, K.PtAP(P)
+            self.keys = add_to_pattern(J, self.C, self.keys, self.comm)
+
+    def destroy(self) -> None:
+        """Free the matrices."""
+        for obj in (self.K, self.C):
+            if obj is not None:
+                obj.destroy()
+        self.K = self.C = None
 
 
 class ReducedProblem:
@@ -103,11 +139,14 @@ class ReducedProblem:
         self.layout, self.ends, self.fe = layout, list(ends), fe
         self.step_state, self.stats, self.linear_ties = step_state, stats, linear_ties
         self.comm = layout.comm
-        self.contact_keys = np.zeros(0, dtype=np.int64)
+        self.contact = ContactProduct(self.comm)
         self.R0 = [b.rotation.copy() for b in bodies]
         self.phi = np.zeros((len(bodies), 3))
         self.x = PETSc.Vec().createMPI((layout.n_local, layout.n_global), comm=self.comm)
         self.r = self.x.duplicate()
+        #: The reduced vector at which the last residual assembled F (see :meth:`_f_current`),
+        #: with the number of F assemblies then; ``None`` when unknown.
+        self._f_at: tuple[np.ndarray, int] | None = None
         #: The prolongation P and the product Pᵀ K P (FE only).
         self.P: PETSc.Mat | None = None
         self.C: PETSc.Mat | None = None
@@ -165,6 +204,7 @@ class ReducedProblem:
 
     def commit(self) -> None:
         """Take the current rotations as the new R₀ (φ ← 0), unless ``linear_ties``."""
+        self._f_at = None
         if self.linear_ties:
             return  # φ is the total rotation vector, R0 stays the identity
         for b, body in enumerate(self.bodies):
@@ -174,6 +214,7 @@ class ReducedProblem:
     def set_rotation(self, b: int, R: np.ndarray) -> None:
         """Body b's rotation is ``R`` now: R₀ ← R, φ ← 0."""
         self.R0[b], self.phi[b] = R.copy(), 0.0
+        self._f_at = None
 
     # ---- loads at the current state ----------------------------------------------------------
     def end_states(self) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -256,6 +297,7 @@ class ReducedProblem:
         lay = self.layout
         if self.fe is not None:
             self.fe.assemble_residual()
+            self._f_at = (x.array_r.copy(), self.fe.residual_assemblies)
             lay.fill_prolongation(self.P, self.bodies, self.phi, self.linear_ties)
             self.P.multTranspose(self.fe.F, r)
         else:
@@ -281,10 +323,11 @@ class ReducedProblem:
             self._jacobian(x, J)
 
     def _jacobian(self, x: PETSc.Vec, J: PETSc.Mat) -> None:
+        f_current = self.fe is not None and self._f_current(x)
         self.update_state(x)
         J.zeroEntries()
         if self.fe is not None:
-            self._add_fe_tangent(J)
+            self._add_fe_tangent(J, f_current)
         terms = self.rigid_terms(with_tangent=True)
         if self.comm.rank == 0 and len(self.bodies):
             rigid = self.layout.rigid_range(len(self.bodies))
@@ -294,25 +337,25 @@ class ReducedProblem:
         J.zeroRowsColumns(self.layout.prescribed_rows(self.bodies), 1.0)
         self.stats.factorizations += 1
 
-    def _add_fe_tangent(self, J: PETSc.Mat) -> None:
-        """Assemble F and K, add Pᵀ K P and the contact's Pᵀ K_c P to ``J``."""
+    def _f_current(self, x: PETSc.Vec) -> bool:
+        """Whether the residual callback's F at this same ``x`` and R₀ is F's last (collective)."""
+        at = self._f_at
+        same = at is not None and at[1] == self.fe.residual_assemblies
+        return bool(self.comm.allreduce(same and np.array_equal(at[0], x.array_r), op=MPI.LAND))
+
+    def _add_fe_tangent(self, J: PETSc.Mat, f_current: bool) -> None:
+        """Assemble F (unless ``f_current``) and K, add Pᵀ K P and the contact's Pᵀ K_c P."""
         fe = self.fe
         with timed(self.stats, "fe_assembly_s"):
-            fe.assemble_residual()
+            if not f_current:
+                fe.assemble_residual()
             fe.assemble_tangent()
         with timed(self.stats, "reduction_s"):
             self.layout.fill_prolongation(self.P, self.bodies, self.phi, self.linear_ties)
             fe.K.PtAP(self.P, self.C)
             J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         if fe.contact is not None:
-            from shoulder_fem.engine.contact import add_to_pattern
-
-            Kc = fe.contact_tangent()
-            with timed(self.stats, "reduction_s"):
-                Cc = Kc.PtAP(self.P)
-                self.contact_keys = add_to_pattern(J, Cc, self.contact_keys, self.comm)
-            Kc.destroy()
-            Cc.destroy()
+            self.contact.add(J, fe, self.P, self.stats)
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------
     def _create_jacobian(self) -> PETSc.Mat:
@@ -342,5 +385,6 @@ class ReducedProblem:
         objs = [self.J, self.x, self.r]
         if self.fe is not None:
             objs += [self.P, self.C]
+        self.contact.destroy()
         for obj in objs:
             obj.destroy()

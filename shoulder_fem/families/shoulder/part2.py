@@ -79,8 +79,10 @@ class NodalLoads:
             arr = loc.array.reshape(-1, 3)
             arr[self._rows] -= self.forces[self._mine]
 
-    def jacobian_matrix(self, K: PETSc.Mat) -> PETSc.Mat:
-        """An empty matrix of the layout of ``K`` (dead loads have no tangent)."""
+    def jacobian_matrix(self, K: PETSc.Mat, reuse: PETSc.Mat | None = None) -> PETSc.Mat:
+        """An empty matrix of ``K``'s layout (dead loads have no tangent); ``reuse`` if given."""
+        if reuse is not None:
+            return reuse
         A = PETSc.Mat().createAIJ(K.getSizes(), nnz=1, comm=self.comm)
         A.setUp()
         A.assemble()

@@ -40,7 +40,7 @@ __all__ = ["FD_STEP", "SegmentPairs", "segment_pair_forces", "segment_tangent_bl
 #: Central-difference step (m) of the node coordinates.
 FD_STEP = 1e-8
 #: Perturbed pair copies evaluated at once (memory bound; every pair is independent).
-CHUNK_ROWS = 20000
+CHUNK_ROWS = 2000
 
 
 class SegmentPairs:

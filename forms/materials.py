@@ -51,6 +51,7 @@ __all__ = [
     "Scalar",
     "VerondaWestmann",
     "bone_modulus",
+    "von_mises",
 ]
 
 Scalar = float | ufl.core.expr.Expr
@@ -339,3 +340,9 @@ class VerondaWestmann(Hyperelastic):
             - a * b / 2 * (i2bar - 3)
             + _volumetric_energy(self.bulk_modulus, J)
         )
+
+
+def von_mises(stress: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """The von Mises equivalent stress √(3/2 s:s) of a 3×3 stress, s its deviator (its unit)."""
+    dev = stress - ufl.tr(stress) / 3 * ufl.Identity(3)
+    return ufl.sqrt(1.5 * ufl.inner(dev, dev))

@@ -407,3 +407,20 @@ def test_parameter_validation(make, name, unit):
     with pytest.raises(ValueError, match=name) as info:
         make()
     assert unit in str(info.value)
+
+
+def test_von_mises_by_hand():
+    """Uniaxial σ = diag(100, 0, 0) Pa: von Mises = 100 Pa; pure shear τ = 10 Pa: √3 τ."""
+    import dolfinx
+    from mpi4py import MPI
+
+    from shoulder_fem.forms.materials import von_mises
+
+    mesh = dolfinx.mesh.create_unit_cube(MPI.COMM_SELF, 1, 1, 1)
+    dx = ufl.dx(domain=mesh)
+    for sigma, expected in (
+        (ufl.as_matrix([[100.0, 0, 0], [0, 0, 0], [0, 0, 0]]), 100.0),
+        (ufl.as_matrix([[0, 10.0, 0], [10.0, 0, 0], [0, 0, 0]]), 10.0 * 3**0.5),
+    ):
+        value = dolfinx.fem.assemble_scalar(dolfinx.fem.form(von_mises(sigma) * dx))
+        assert value == pytest.approx(expected, rel=1e-12)

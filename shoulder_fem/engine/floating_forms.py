@@ -13,7 +13,7 @@ import ufl
 
 from shoulder_fem.engine.fem import constant
 from shoulder_fem.engine.so3 import I3
-from shoulder_fem.forms import kinematics
+from shoulder_fem.forms import kinematics, materials
 from shoulder_fem.forms.materials import Hyperelastic
 
 __all__ = ["FloatingForms", "frame_directions", "mean_axes_forms"]
@@ -162,10 +162,9 @@ class FloatingForms:
         #: ∫W(E(ũ)) (J), compiled.
         self.strain_energy = dolfinx.fem.form(material.strain_energy(C_body) * dx)
         S = material.second_piola(C_body)
-        dev = S - ufl.tr(S) / 3 * ufl.Identity(3)
         Q0 = dolfinx.fem.FunctionSpace(mesh, ("DG", 0))
         self.von_mises = dolfinx.fem.Function(Q0, name="von_mises")
         #: The von Mises stress of S (Pa), to interpolate into :attr:`von_mises`.
         self.von_mises_expr = dolfinx.fem.Expression(
-            ufl.sqrt(1.5 * ufl.inner(dev, dev)), Q0.element.interpolation_points()
+            materials.von_mises(S), Q0.element.interpolation_points()
         )

@@ -451,11 +451,10 @@ class DecoupledOutputs:
         material, eps = straining.material, kinematics.linear_strain(straining.u)
         self.strain = dolfinx.fem.form(material.strain_energy_density(eps) * dx)
         sigma = material.stress(eps)
-        dev = sigma - ufl.tr(sigma) / 3 * ufl.Identity(3)
         Q0 = dolfinx.fem.FunctionSpace(mesh, ("DG", 0))
         self.von_mises = dolfinx.fem.Function(Q0, name="von_mises")
         self.vm_expr = dolfinx.fem.Expression(
-            ufl.sqrt(1.5 * ufl.inner(dev, dev)), Q0.element.interpolation_points()
+            materials.von_mises(sigma), Q0.element.interpolation_points()
         )
         self.n_cells = mesh.topology.index_map(3).size_local
         self.inertial_u = dolfinx.fem.Function(V, name="displacement")

@@ -19,6 +19,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.families.driven_body.model import DrivenBody, quadrature
+from shoulder_fem.forms import materials
 from shoulder_fem.meshes.bar import TIP
 
 if TYPE_CHECKING:
@@ -81,10 +82,9 @@ class BodyOutputs:
         self.axial_stress = dolfinx.fem.Function(Q0, name="axial_stress")
         self.von_mises = dolfinx.fem.Function(Q0, name="von_mises")
         s = stress_body
-        dev = s - ufl.tr(s) / 3 * ufl.Identity(3)
         points = Q0.element.interpolation_points()
         self._sxx_expr = dolfinx.fem.Expression(s[0, 0], points)
-        self._vm_expr = dolfinx.fem.Expression(ufl.sqrt(1.5 * ufl.inner(dev, dev)), points)
+        self._vm_expr = dolfinx.fem.Expression(materials.von_mises(s), points)
 
     def tip_deflection(self) -> float:
         """In-plane transverse (y) tip displacement in the rotating frame, tip-face mean (m)."""

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dolfinx
 import numpy as np
-import ufl
 
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.families.base import RunContext
@@ -25,7 +24,7 @@ from shoulder_fem.families.shoulder.interactions import (
     surfaces,
 )
 from shoulder_fem.families.shoulder.measures import Probe, VonMises
-from shoulder_fem.families.shoulder.model import ShoulderModel, head_tags
+from shoulder_fem.families.shoulder.model import ShoulderModel, displacement
 from shoulder_fem.families.shoulder.outputs import save_results, unknowns
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
 from shoulder_fem.forms import materials
@@ -38,14 +37,9 @@ __all__ = ["run_coupled"]
 def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     """Method #1: every body deformable, finite strain (collective)."""
     p = model.params
-    sm = model.meshes["deformable"]
-    mesh, ct_ = sm.mesh, sm.cell_tags
-    ft = head_tags(model, mesh, sm.facet_tags)
+    d = displacement(model, "deformable")
+    mesh, ct_, ft, V, u, w, dx = d.mesh, d.cell_tags, d.facet_tags, d.V, d.u, d.w, d.dx
     comm = mesh.comm
-    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
-    u = dolfinx.fem.Function(V, name="displacement")
-    w = ufl.TestFunction(V)
-    dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
     rho, E = bone_fields(mesh, ct_, model.image, p)
     bone = materials.SaintVenantKirchhoff(E, materials.BONE_NU)
     F = soft_tissue_residual(u, w, dx)

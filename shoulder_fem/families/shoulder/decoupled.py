@@ -14,7 +14,6 @@ from pathlib import Path
 
 import dolfinx
 import numpy as np
-import ufl
 from mpi4py import MPI
 
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
@@ -28,7 +27,11 @@ from shoulder_fem.families.shoulder.interactions import (
     surfaces,
 )
 from shoulder_fem.families.shoulder.measures import Probe
-from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters, head_tags
+from shoulder_fem.families.shoulder.model import (
+    ShoulderModel,
+    ShoulderParameters,
+    displacement,
+)
 from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
 from shoulder_fem.families.shoulder.part2 import run_part2
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
@@ -165,13 +168,9 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
     """
     p = model.params
     sm = model.meshes["rigid-bone"]
-    mesh, ct_ = sm.mesh, sm.cell_tags
-    ft = head_tags(model, mesh, sm.facet_tags)
+    d = displacement(model, "rigid-bone")
+    mesh, ct_, ft, V, u, w, dx = d.mesh, d.cell_tags, d.facet_tags, d.V, d.u, d.w, d.dx
     comm = mesh.comm
-    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
-    u = dolfinx.fem.Function(V, name="displacement")
-    w = ufl.TestFunction(V)
-    dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
     F = soft_tissue_residual(u, w, dx)
     contact = joint_contact(V, u, ft, p)
     humerus = RigidBody("humerus", np.zeros(3))

@@ -21,6 +21,7 @@ from shoulder_fem.engine.contact import Contact
 from shoulder_fem.families.shoulder.geometry import cap_angles, gather_rows
 from shoulder_fem.families.shoulder.interactions import muscle_forms
 from shoulder_fem.families.shoulder.model import ShoulderParameters
+from shoulder_fem.forms import materials
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["REPORTED_MUSCLES", "Probe", "VonMises", "cap_contact_angles"]
@@ -86,8 +87,7 @@ class VonMises:
     """
 
     def __init__(self, mesh, cell_tags, stress: ufl.core.expr.Expr):
-        dev = stress - ufl.tr(stress) / 3 * ufl.Identity(3)
-        vm = ufl.sqrt(1.5 * ufl.inner(dev, dev))
+        vm = materials.von_mises(stress)
         self.D = dolfinx.fem.FunctionSpace(mesh, ("DG", 1))
         self.P = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
         self._expr = dolfinx.fem.Expression(vm, self.D.element.interpolation_points())

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, fields
 
 import dolfinx
 import numpy as np
+import ufl
 from mpi4py import MPI
 
 from shoulder_fem.families.shoulder.geometry import glenoid_frame, humeral_cap
@@ -20,7 +21,16 @@ from shoulder_fem.io import ct
 from shoulder_fem.meshes import shoulder as S
 from shoulder_fem.scene import Scene
 
-__all__ = ["DETACHED", "ShoulderModel", "ShoulderParameters", "build", "dofs", "head_tags"]
+__all__ = [
+    "DETACHED",
+    "Displacement",
+    "ShoulderModel",
+    "ShoulderParameters",
+    "build",
+    "displacement",
+    "dofs",
+    "head_tags",
+]
 
 #: The bonded interface cut open in the coupled mesh: the driven origin plate is not bone.
 DETACHED = (("subscapularis_origin", "subscapularis"),)
@@ -144,3 +154,28 @@ def head_tags(model: ShoulderModel, mesh, facet_tags) -> dolfinx.mesh.MeshTags:
     if not model.params.humeral_head_contact:
         return facet_tags
     return S.head_surface_tags(mesh, facet_tags, S.head_region_radius(model.geometry))
+
+
+@dataclass(frozen=True)
+class Displacement:
+    """A mesh variant's P2 displacement, its test function and cell measure (collective)."""
+
+    mesh: dolfinx.mesh.Mesh
+    cell_tags: dolfinx.mesh.MeshTags
+    facet_tags: dolfinx.mesh.MeshTags  # with the muscle-bone contact surfaces if it is on
+    V: dolfinx.fem.FunctionSpace
+    u: dolfinx.fem.Function
+    w: ufl.Argument
+    dx: ufl.Measure
+
+
+def displacement(model: ShoulderModel, variant: str) -> Displacement:
+    """The displacement field on mesh variant ``variant`` ("deformable", "rigid-bone")."""
+    sm = model.meshes[variant]
+    mesh, ct_ = sm.mesh, sm.cell_tags
+    ft = head_tags(model, mesh, sm.facet_tags)
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+    u = dolfinx.fem.Function(V, name="displacement")
+    w = ufl.TestFunction(V)
+    dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=model.params.quadrature())
+    return Displacement(mesh, ct_, ft, V, u, w, dx)

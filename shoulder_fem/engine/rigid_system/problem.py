@@ -16,7 +16,8 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from shoulder_fem.engine.rigid_system.bodies import BodyBalance, RigidBody, Tie
+from shoulder_fem.engine.rigid_system.bodies import RigidBody, Tie
+from shoulder_fem.engine.rigid_system.control import TravelControl, set_control_rows
 from shoulder_fem.engine.rigid_system.deformable import DeformablePart
 from shoulder_fem.engine.rigid_system.dynamics import StepState
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout
@@ -26,13 +27,12 @@ from shoulder_fem.engine.rigid_system.terms import (
     end_states,
     external_loads,
     rigid_terms,
-    spring_load_on,
     spring_terms,
     tie_loads,
 )
 from shoulder_fem.engine.so3 import exp_so3, log_so3
 from shoulder_fem.engine.solver import SolveStats
-from shoulder_fem.engine.springs import Spring, spring_response
+from shoulder_fem.engine.springs import Spring
 
 __all__ = ["ContactProduct", "ReducedProblem", "RigidSolveStats", "timed"]
 
@@ -153,6 +153,29 @@ class ReducedProblem:
         if fe is not None:
             self.P = layout.create_prolongation(bodies, self.phi, linear_ties)
         self.J = self._create_jacobian()
+        #: The travel control (:meth:`set_control`), or None.
+        self.control: TravelControl | None = None
+        self._control_work: tuple[PETSc.Vec, PETSc.Vec] | None = None
+
+    def set_control(self, control: TravelControl) -> None:
+        """Solve for ``control``'s travel: its body's translation rows become the control's."""
+        self.control = control
+        if self.P is not None:
+            self._control_work = self.P.createVecs()  # (reduced, FE)
+
+    def _controlled(self, b: int) -> bool:
+        return self.control is not None and self.control.body == b
+
+    def dirichlet_rows(self) -> np.ndarray:
+        """The prescribed DOFs whose rows and columns are the identity.
+
+        The controlled body's translation is not one of them (its rows are the control's).
+        """
+        rows = self.layout.prescribed_rows(self.bodies)
+        if self.control is None or len(rows) == 0:
+            return rows
+        free = self.layout.rigid_cols(self.control.body)[:3]
+        return rows[~np.isin(rows, free)]
 
     # ---- state <-> reduced vector -----------------------------------------------------------
     def x_from_state(self, targets: bool = True) -> PETSc.Vec:
@@ -175,7 +198,8 @@ class ReducedProblem:
                 if self.linear_ties:
                     phi = self.phi[b].copy()  # the total rotation vector (R0 = I)
                 if targets and body.prescribed and body.target is not None:
-                    t = body.target[0]
+                    if not self._controlled(b):  # a controlled body's travel is an unknown
+                        t = body.target[0]
                     phi = log_so3(body.target[1] @ self.R0[b].T)
                 elif (
                     targets
@@ -255,37 +279,6 @@ class ReducedProblem:
                 inertia[b] = steps.rows(b, self.bodies[b], self.phi[b])
         return rigid_terms(self.bodies, springs, tie_m, G, inertia, self.phi, self.linear_ties)
 
-    def balance(self, b: int, last_inertia: np.ndarray | None) -> BodyBalance:
-        """Forces and moments on body b at the current state (collective; F assembled here).
-
-        ``last_inertia``: the inertia rows of the last dynamic step (:class:`StepState`).
-        """
-        body = self.bodies[b]
-        if self.fe is not None:
-            self.fe.assemble_residual()
-        tie_f, tie_m, _ = self.tie_loads()
-        spring_f, spring_m = spring_load_on(b, self.springs, self.ends, self.end_states())
-        inertia = np.zeros(6) if last_inertia is None else -last_inertia[b]
-        return BodyBalance(
-            -tie_f[b],
-            -tie_m[b],
-            spring_f,
-            spring_m,
-            body.force.copy(),
-            body.moment.copy(),
-            inertia[:3].copy(),
-            inertia[3:].copy(),
-        )
-
-    def spring_forces(self) -> dict[str, dict[str, float]]:
-        """Per spring: length (m), tension (N, positive when stretched) (collective)."""
-        states = self.end_states()
-        out = {}
-        for j, spring in enumerate(self.springs):
-            resp = spring_response(spring, states[2 * j][0], states[2 * j + 1][0])
-            out[spring.name] = {"length": resp.length, "tension": resp.tension}
-        return out
-
     # ---- SNES callbacks -------------------------------------------------------------------
     def residual(self, snes: PETSc.SNES, x: PETSc.Vec, r: PETSc.Vec) -> None:
         """SNES residual: r = Pᵀ F + r_rigid at ``x`` (N; N·m); zero rows of prescribed bodies."""
@@ -303,6 +296,10 @@ class ReducedProblem:
         else:
             r.set(0.0)
         terms = self.rigid_terms(with_tangent=False)
+        control = None
+        if self.control is not None:
+            value = self.control.measure(False).value
+            control = self.control.residual(value, self.bodies[self.control.body].translation)
         # Every rank touches the array (PETSc bumps the vector's state, which must stay the same
         # on all ranks or cached norms differ and the ranks fall out of step).
         arr = r.array
@@ -316,6 +313,8 @@ class ReducedProblem:
                 if body.prescribed:
                     k = lay.n_free_local + 6 * b
                     arr[k : k + 6] = 0.0
+                    if self._controlled(b):
+                        arr[k : k + 3] = control
 
     def jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, J: PETSc.Mat, P: PETSc.Mat) -> None:
         """SNES Jacobian: J = Pᵀ K P + rigid tangent at ``x``; prescribed bodies' rows identity."""
@@ -334,7 +333,9 @@ class ReducedProblem:
             J.setValues(rigid, rigid, terms.tangent.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
         self.layout.add_node_blocks(J, self.ends, terms.node_tangent, terms.T)
         J.assemble()
-        J.zeroRowsColumns(self.layout.prescribed_rows(self.bodies), 1.0)
+        J.zeroRowsColumns(self.dirichlet_rows(), 1.0)
+        if self.control is not None:
+            set_control_rows(J, self.control, self.layout, self.P, self._control_work, self.phi)
         self.stats.factorizations += 1
 
     def _f_current(self, x: PETSc.Vec) -> bool:

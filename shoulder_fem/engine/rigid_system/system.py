@@ -17,11 +17,13 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from shoulder_fem.engine.rigid_system.bodies import BodyBalance, RigidBody, Tie
+from shoulder_fem.engine.rigid_system.bodies import RigidBody, Tie
+from shoulder_fem.engine.rigid_system.control import ControlledSystem
 from shoulder_fem.engine.rigid_system.deformable import DeformablePart
 from shoulder_fem.engine.rigid_system.dynamics import StepState
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout, check_topology
 from shoulder_fem.engine.rigid_system.problem import ReducedProblem, RigidSolveStats, timed
+from shoulder_fem.engine.rigid_system.reports import SystemReports
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     default_snes_options,
@@ -88,7 +90,7 @@ def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, 
     return its
 
 
-class RigidSystem:
+class RigidSystem(SystemReports, ControlledSystem):
     """A system of a deformable body, rigid bodies, ties, springs and applied loads.
 
     Static by default (:meth:`solve`); with ``dynamic=True`` :meth:`step` also integrates the
@@ -338,41 +340,6 @@ class RigidSystem:
         self._step.dt = None
 
     # ---- outputs -----------------------------------------------------------------------------
-    def balance(self, name: str) -> BodyBalance:
-        """Forces and moments on body ``name`` at the current state (collective).
-
-        Tie forces are those the deformable body exerts on the rigid body (minus the FE
-        residual at its tied nodes); moments are about the body's current reference point.
-        A prescribed body also receives the (unreported) reaction of its prescription.
-        """
-        return self._problem.balance(self._index[name], self._step.last_inertia)
-
-    def energy(self) -> dict[str, float]:
-        """Kinetic energy of the bodies with a mass and elastic energy of the springs (J)."""
-        kinetic = sum(b.kinetic_energy() for b in self.bodies if b.mass is not None)
-        springs = 0.0
-        for spring, out in zip(self.springs, self.spring_forces().values(), strict=True):
-            if out["tension"] != 0.0 or not spring.tension_only:
-                springs += 0.5 * spring.stiffness * (out["length"] - spring.rest_length) ** 2
-        return {"kinetic": float(kinetic), "springs": float(springs)}
-
-    def spring_forces(self) -> dict[str, dict[str, float]]:
-        """Per spring: length (m), tension (N, positive when stretched) (collective)."""
-        return self._problem.spring_forces()
-
-    def assembled_residual(self) -> PETSc.Vec:
-        """The FE residual (N) at the current state, without conditions (collective; read only)."""
-        self._fe.assemble_residual()
-        return self._fe.F
-
-    def reaction(self, surface: str, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-        """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``."""
-        return self._fe.reaction(surface, point)
-
-    def tied_positions(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """Reference and current positions (m) of the nodes tied to ``name``, on every rank."""
-        return self._fe.tied_positions(self._index[name])
-
     def destroy(self) -> None:
         """Free the PETSc objects."""
         self.snes.destroy()

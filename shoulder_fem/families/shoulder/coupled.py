@@ -27,6 +27,7 @@ from shoulder_fem.families.shoulder.measures import Probe, VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel, displacement
 from shoulder_fem.families.shoulder.outputs import save_results, unknowns
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
+from shoulder_fem.families.shoulder.twist import fitted_twist
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.meshes import shoulder as S
@@ -78,6 +79,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         contact=contact,
         actuator=actuator,
         rotation=rotation,
+        measure=fitted_twist(u, humerus_dofs, model.shaft_axis),
         probe=probe,
         u=u,
         label="coupled",

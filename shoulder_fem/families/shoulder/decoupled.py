@@ -35,6 +35,7 @@ from shoulder_fem.families.shoulder.model import (
 from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
 from shoulder_fem.families.shoulder.part2 import run_part2
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
+from shoulder_fem.families.shoulder.twist import rigid_twist
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["HUMERUS_TIES", "SCAPULA_LOAD_SURFACES", "Transfer", "run_decoupled", "run_part1"]
@@ -200,6 +201,7 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
         contact=contact,
         actuator=actuator,
         rotation=lambda: humerus.rotation,
+        measure=rigid_twist(humerus, 0, model.shaft_axis),
         probe=probe,
         u=u,
         label="part1",

@@ -18,6 +18,7 @@ from shoulder_fem.meshes import shoulder as S
 
 __all__ = [
     "best_fit_rotation",
+    "best_fit_twist",
     "cap_angles",
     "gather_rows",
     "glenoid_frame",
@@ -27,6 +28,7 @@ __all__ = [
     "surface_centroid",
     "swing_angle",
     "twist_angle",
+    "twist_gradient",
     "unit",
 ]
 
@@ -105,6 +107,40 @@ def best_fit_rotation(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> np.ndarra
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.T @ U.T))
     return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+
+
+def twist_gradient(R: np.ndarray, axis: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """The derivative of twist_angle by ω (1/rad), ``R → exp(hat ω) R``: central differences."""
+    grad = np.zeros(3)
+    for j in range(3):
+        step = Rotation.from_rotvec(h * np.eye(3)[j]).as_matrix()
+        plus, minus = twist_angle(step @ R, axis), twist_angle(step.T @ R, axis)
+        grad[j] = (plus - minus) / (2.0 * h)
+    return grad
+
+
+def best_fit_twist(
+    X: np.ndarray, x: np.ndarray, axis: np.ndarray, comm: MPI.Comm, with_gradient: bool
+) -> tuple[float, np.ndarray | None]:
+    """Twist (rad) of the best-fit rotation of points ``X`` -> ``x``, and its gradient (collective).
+
+    The gradient (n, 3) with respect to the owned points ``x`` linearises the fit: with
+    Y_i = R (X_i - C) and y_i = x_i - c, the optimal R makes Σ Y_i × y_i vanish; perturbed by
+    δx and R → exp(hat ω) R this gives M ω = -Σ Y_i × δx_i with M = Σ Y_i y_iᵀ - (Σ Y_i·y_i) I
+    (the mean δx drops out as Σ Y_i = 0). So d twist / d x_i = Y_i × s with s = M⁻ᵀ dtwist/dω.
+    """
+    R = best_fit_rotation(X, x, comm)
+    value = twist_angle(R, axis)
+    if not with_gradient:
+        return value, None
+    n = comm.allreduce(len(X), op=MPI.SUM)
+    C = comm.allreduce(X.sum(axis=0), op=MPI.SUM) / n
+    c = comm.allreduce(x.sum(axis=0), op=MPI.SUM) / n
+    Y, y = (X - C) @ R.T, x - c
+    H = comm.allreduce(Y.T @ y, op=MPI.SUM)
+    M = H - np.trace(H) * np.eye(3)
+    s = np.linalg.solve(M.T, twist_gradient(R, axis))
+    return value, np.cross(Y, s)
 
 
 def unit(v) -> np.ndarray:

@@ -49,8 +49,6 @@ class ShoulderParameters:
     final_angle: float
     angle_step: float
     output_angle: float
-    angle_tolerance: float
-    max_actuation_step: float
     max_cutbacks: int
     contact_penalty: float
     muscle_contact: str

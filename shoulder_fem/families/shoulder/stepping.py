@@ -1,10 +1,14 @@
-"""The angle-driven stepping shared by the coupled method and decoupled part 1.
+"""The angle-controlled stepping shared by the coupled method and decoupled part 1.
 
-The scapular origin of the subscapularis is a rigid plate displaced along
+The scapular origin of the subscapularis is a rigid plate that travels along
 :data:`ACTUATION_DIRECTION`; the humeral rotation angle (the twist about the shaft axis of the
-humerus's best-fit rigid rotation) is the progress variable. The actuation is found by secant
-iterations for each target angle (every ``angle_step``), with cutbacks of failed steps, and the
-outputs are recorded every ``output_angle`` (:func:`run_steps`).
+humerus's rigid rotation, or of the best fit of its nodes in the coupled method) is the progress
+variable. Each step is one Newton solve in which the plate's travel is an unknown and
+"twist = target" its equation (:class:`~shoulder_fem.engine.rigid_system.control.TravelControl`):
+targets are hit to ``snes_atol / ANGLE_SCALE`` rad. A tangent predictor (``dx/dθ`` by one
+back-substitution with the last factorization) starts each step; the increments adapt to the
+Newton iterations (:data:`TARGET_ITERATIONS`) and never step over an output angle, so the
+outputs every ``output_angle`` are exact (:func:`run_steps`).
 """
 
 from __future__ import annotations
@@ -16,10 +20,11 @@ from dataclasses import dataclass, field
 
 import dolfinx
 import numpy as np
-from scipy.spatial.transform import Rotation
+from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import Contact
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
+from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.solver import ConvergenceError, StepperStats
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, unit
@@ -31,10 +36,12 @@ from shoulder_fem.io.results import Recorder
 
 __all__ = [
     "ACTUATION_DIRECTION",
+    "ANGLE_SCALE",
     "FALLBACK_LINESEARCH",
     "SNES_OPTIONS",
+    "TARGET_ITERATIONS",
     "AngleOutputs",
-    "RotationDriver",
+    "AngleStepper",
     "StepLog",
     "Stepping",
     "drive_rotation",
@@ -63,8 +70,13 @@ SNES_OPTIONS = {
 }
 FALLBACK_LINESEARCH = "l2"
 
-#: Secant steps allowed towards one target angle.
-SECANT_STEPS = 30
+#: Residual of the angle equation per radian of twist error (N/rad): with ``snes_atol`` =
+#: 1e-3 N a converged step is within 1e-8 rad (6e-7 deg) of its target angle.
+ANGLE_SCALE = 1e5
+
+#: Newton iterations per step that the adaptive increments aim at: the next increment is the
+#: last one times sqrt(TARGET_ITERATIONS / iterations), within [1/2, 2].
+TARGET_ITERATIONS = 5
 
 
 @dataclass
@@ -78,18 +90,18 @@ class StepLog:
     history: list = field(default_factory=list)
 
 
-# ---- the secant driver ----------------------------------------------------------------------
+# ---- the angle-controlled stepper ------------------------------------------------------------
 
 
-class RotationDriver:
-    """Secant iterations on the actuator's displacement towards each target angle (collective).
+class AngleStepper:
+    """Steps of the humeral angle, each one Newton solve with the actuator's travel unknown.
 
-    A step whose Newton solve fails is cut back (halved) up to ``max_cutbacks`` times in a row
-    (at most 2 x ``max_cutbacks`` failures per target angle); then the stepping stops.
+    A step whose Newton solve fails is cut back (halved) up to ``max_cutbacks`` times in a row;
+    then the stepping stops at the last converged state.
 
     Attributes:
-        theta: The current humeral rotation angle (rad).
-        d: The current displacement of the actuator along ``direction`` (m).
+        theta: The target angle of the last converged step (rad).
+        increment: The next step's angle increment (rad).
         log: The counters.
     """
 
@@ -99,126 +111,120 @@ class RotationDriver:
         contact: Contact,
         actuator: RigidBody,
         direction: np.ndarray,
-        angle: Callable[[], float],
+        measure: Callable[[bool], MeasureGradient],
         params: ShoulderParameters,
         label: str,
     ):
         self.system, self.contact, self.actuator = system, contact, actuator
-        self.direction, self.angle, self.label = direction, angle, label
+        self.direction, self.measure, self.label = direction, measure, label
         self.final = params.final_angle
-        self.tol = params.angle_tolerance
-        self.d_max = params.max_actuation_step
+        self.increment = params.angle_step
         self.max_cut = int(params.max_cutbacks)
         self.log = StepLog()
-        self.theta, self.d = 0.0, 0.0
-        self.slope = None
-        self.previous = None  # (d, snapshot) of the step before the current state
+        self.theta = 0.0
+        self.tangent: PETSc.Vec | None = None
 
     def start(self) -> None:
-        """Solve the unloaded state and take its angle."""
+        """Solve the unloaded state (the plate at rest), then control the plate by the angle."""
         self.system.solve(step=f"{self.label} 0 deg")
         self.contact.commit()
-        self.theta, self.d = self.angle(), 0.0
+        control = self.system.set_control(
+            self.actuator.name, self.direction, self.measure, ANGLE_SCALE
+        )
+        self.theta = control.target  # the unloaded state's own angle
 
-    def reach(self, target: float) -> str | None:
-        """Step until the angle is within ``angle_tolerance`` of ``target`` (rad).
+    def travel(self) -> float:
+        """The plate's travel along its direction (m)."""
+        return self.system.control.travel(self.actuator.translation)
+
+    def reach(self, goal: float) -> str | None:
+        """Step until the target angle is ``goal`` (rad), adapting the increments.
 
         Returns:
             None, or why the stepping stopped (the state is the last converged one).
         """
-        limit = self.d_max
-        # cutbacks in a row; failures on the way to this target (a short secant step that
-        # converges resets the cutbacks, not the failures: at a wall the run ends all the same)
-        cuts = fails = 0
-        for _ in range(SECANT_STEPS):
-            if abs(self.theta - target) <= self.tol:
-                break
-            if self.slope is None or self.slope <= 0:
-                dd = 0.25 * self.d_max
-            else:
-                dd = (target - self.theta) / self.slope
-            dd = float(np.clip(dd, -limit, limit))
-            err = self.try_step(target, dd)
+        cuts = 0
+        while goal - self.theta > 1e-12:
+            step = min(self.increment, goal - self.theta)
+            clipped = step < self.increment
+            err, its = self.try_step(self.theta + step)
             if err is not None:
                 cuts += 1
-                limit = 0.5 * abs(dd)
+                self.increment = 0.5 * step
                 logger.warning(
-                    "%s: step d = %.3f -> %.3f mm failed (%s); cutback %d/%d",
+                    "%s: step %.3f -> %.3f deg failed (%s); cutback %d/%d",
                     self.label,
-                    self.d * 1e3,
-                    (self.d + dd) * 1e3,
+                    math.degrees(self.theta),
+                    math.degrees(self.theta + step),
                     err.reason,
                     cuts,
                     self.max_cut,
                 )
-                fails += 1
-                if cuts > self.max_cut or fails > 2 * self.max_cut:
-                    return self._stalled(target, cuts, fails, err)
+                if cuts > self.max_cut:
+                    return self._stalled(goal, err)
                 continue
             cuts = 0
-            limit = min(self.d_max, 2.0 * limit)  # a cut-back step size grows back on success
-        if abs(self.theta - target) > self.tol:
-            return (
-                f"{self.label}: stopped at {math.degrees(self.theta):.2f} deg of "
-                f"{math.degrees(self.final):.0f} "
-                f"deg: the angle {math.degrees(target):.1f} deg was not reached within "
-                f"{math.degrees(self.tol):.3g} deg in {SECANT_STEPS} secant steps"
-            )
+            factor = float(np.clip(math.sqrt(TARGET_ITERATIONS / max(its, 1)), 0.5, 2.0))
+            if not (clipped and factor > 1.0):  # a step shortened to hit an output says nothing
+                self.increment = step * factor
         return None
 
-    def _stalled(self, target: float, cuts: int, fails: int, err: ConvergenceError) -> str:
-        why = (
-            f"after {self.max_cut} cutbacks"
-            if cuts > self.max_cut
-            else f"in {fails} tries (more than 2 x max_cutbacks)"
-        )
+    def _stalled(self, goal: float, err: ConvergenceError) -> str:
         return (
             f"{self.label}: stopped at {math.degrees(self.theta):.2f} deg of "
             f"{math.degrees(self.final):.0f} deg: the step towards "
-            f"{math.degrees(target):.1f} deg did not converge {why} ({err.reason})"
+            f"{math.degrees(goal):.1f} deg did not converge after {self.max_cut} cutbacks "
+            f"({err.reason})"
         )
 
-    def try_step(self, target: float, dd: float) -> ConvergenceError | None:
-        """Move the actuator by ``dd`` (m) and solve; accept the state or restore the old one.
+    def try_step(self, target: float) -> tuple[ConvergenceError | None, int]:
+        """Predict and solve the step to ``target`` (rad); accept it or restore the old state.
 
         Returns:
-            None if the step converged, else the solver's error (the state is restored).
+            (None, Newton iterations) if the step converged, else (the solver's error, 0).
         """
-        system, d, previous = self.system, self.d, self.previous
+        system = self.system
         snap = system.snapshot()
+        step = target - self.theta
 
-        def predict(snap=snap, dd=dd, d=d, previous=previous):
-            if previous is not None and abs(previous[0] - d) > 0:
-                _extrapolate(system, snap, previous, dd / (d - previous[0]))
-            self.actuator.prescribe((d + dd) * self.direction, np.eye(3))
+        def predict(snap=snap, step=step):
+            if self.tangent is not None:
+                system.predict(self.tangent, step)
 
         predict()
+        system.control.target = target
         try:
             its = _solve_with_fallback(
-                system, f"{self.label} {math.degrees(target):.1f} deg", snap, predict, self.log
+                system, f"{self.label} {math.degrees(target):.2f} deg", snap, predict, self.log
             )
         except ConvergenceError as err:
             system.restore(snap)
             self.log.failed_steps += 1
-            return err
+            return err, 0
         self.contact.commit()
-        self.previous = (d, snap)
-        new = self.angle()
-        if abs(dd) > 0 and abs(new - self.theta) > 1e-12:
-            self.slope = (new - self.theta) / dd
-        self.d, self.theta = d + dd, new
+        if self.tangent is not None:
+            self.tangent.destroy()
+        self.tangent = system.control_tangent()
+        self.theta = target
+        measured = self.measure(False).value
         self.log.steps += 1
         self.log.newton_iterations += its
-        self.log.history.append((self.d, self.theta, its))
+        self.log.history.append((self.travel(), measured, its))
         logger.info(
-            "%s: d = %.3f mm, angle %.3f deg (target %.1f), %d Newton iterations",
+            "%s: travel %.3f mm, angle %.6f deg (target %.2f), %d Newton iterations",
             self.label,
-            self.d * 1e3,
-            math.degrees(self.theta),
+            self.travel() * 1e3,
+            math.degrees(measured),
             math.degrees(target),
             its,
         )
-        return None
+        return None, its
+
+    def destroy(self) -> None:
+        """Free the tangent."""
+        if self.tangent is not None:
+            self.tangent.destroy()
+            self.tangent = None
 
 
 def drive_rotation(
@@ -226,47 +232,52 @@ def drive_rotation(
     contact: Contact,
     actuator: RigidBody,
     direction: np.ndarray,
-    angle: Callable[[], float],
+    measure: Callable[[bool], MeasureGradient],
     params: ShoulderParameters,
     on_output: Callable[[float], None],
     label: str,
 ) -> tuple[float, StepLog, str | None]:
-    """Move the actuator plate until the humerus reaches each target angle (collective).
+    """Turn the humerus through every output angle up to the final one (collective).
 
     Args:
-        system: The system to solve (its actuator body is prescribed).
+        system: The system to solve (its actuator body is prescribed; its travel becomes an
+            unknown after the unloaded solve).
         contact: Its contact terms (committed after each accepted step).
         actuator: The prescribed plate of the subscapularis origin.
-        direction: Unit direction of its displacement.
-        angle: Callable -> current humeral rotation angle (rad).
-        params: The scene's parameters (angles in rad, lengths in m).
-        on_output: Callable(angle_rad) at 0 and every output angle reached.
+        direction: Unit direction of its travel.
+        measure: The humeral twist (rad) and its gradient (:class:`MeasureGradient`).
+        params: The scene's parameters (angles in rad).
+        on_output: Callable(angle_rad) at 0 and every multiple of ``output_angle`` reached.
         label: For the progress messages.
 
     Returns:
-        (final angle in rad, counters, None or the reason the run stopped early).
+        (the last angle reached in rad, counters, None or the reason the run stopped early).
     """
-    step = params.angle_step
     every = params.output_angle
-    driver = RotationDriver(system, contact, actuator, direction, angle, params, label)
-    driver.start()
-    on_output(0.0)
-    n_targets = int(round(params.final_angle / step))
-    for k in range(1, n_targets + 1):
-        target = k * step
-        stop = driver.reach(target)
-        if stop is not None:
-            return driver.theta, driver.log, stop
-        if abs(target / every - round(target / every)) < 1e-9:
-            on_output(target)
-    return driver.theta, driver.log, None
+    stepper = AngleStepper(system, contact, actuator, direction, measure, params, label)
+    try:
+        stepper.start()
+        on_output(0.0)
+        n_outputs = int(math.floor(params.final_angle / every + 1e-9))
+        goals = [k * every for k in range(1, n_outputs + 1)]
+        if params.final_angle - (goals[-1] if goals else 0.0) > 1e-9:
+            goals.append(params.final_angle)
+        for goal in goals:
+            stop = stepper.reach(goal)
+            if stop is not None:
+                return stepper.theta, stepper.log, stop
+            if abs(goal / every - round(goal / every)) < 1e-9:  # not a final angle in between
+                on_output(goal)
+        return stepper.theta, stepper.log, None
+    finally:
+        stepper.destroy()
 
 
 def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: StepLog) -> int:
     """Solve; if Newton ran out of iterations, solve again with the ``FALLBACK_LINESEARCH``.
 
     The second solve starts from ``snap`` (re-predicted by ``predict()``). Returns the Newton
-    iterations of the solve that converged.
+    iterations of both solves.
 
     Raises:
         ConvergenceError: Both solves failed (the reason of the second).
@@ -281,6 +292,7 @@ def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: Ste
             "%s: %s; retried with the %s line search", step, err.reason, FALLBACK_LINESEARCH
         )
         log.fallbacks += 1
+        log.newton_iterations += err.iterations
         system.restore(snap)
         predict()
         system.linesearch = FALLBACK_LINESEARCH
@@ -288,21 +300,6 @@ def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: Ste
             return system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search)")
         finally:
             system.linesearch = original
-
-
-def _extrapolate(system: RigidSystem, current: tuple, previous: tuple, ratio: float) -> None:
-    """Linear predictor: state + ratio x (state - previous state) for u and the free bodies."""
-    u_now, motions_now, _ = current
-    u_old, motions_old, _ = previous[1]
-    ratio = float(np.clip(ratio, -1.0, 1.0))
-    system.u.x.array[:] = u_now + ratio * (u_now - u_old)
-    for body, (t1, R1), (t0, R0) in zip(system.bodies, motions_now, motions_old, strict=True):
-        if body.prescribed:
-            continue
-        step = Rotation.from_matrix(R0.T @ R1).as_rotvec()
-        system.move(
-            body.name, t1 + ratio * (t1 - t0), R1 @ Rotation.from_rotvec(ratio * step).as_matrix()
-        )
 
 
 # ---- one stepping with its outputs ----------------------------------------------------------
@@ -317,6 +314,8 @@ class Stepping:
         contact: Its contact terms.
         actuator: The prescribed plate of the subscapularis origin.
         rotation: Callable -> the humerus's current rotation (3 x 3).
+        measure: The humerus's twist about its shaft axis (rad) and its gradient at the current
+            state (:class:`MeasureGradient`): the equation of the actuator's travel.
         probe: The per-output measurements on ``u``'s mesh.
         u: The displacement (m); its P1 interpolation is written to ``<label>.xdmf``.
         label: Names the progress messages, the fields file and the time-split probes.
@@ -329,6 +328,7 @@ class Stepping:
     contact: Contact
     actuator: RigidBody
     rotation: Callable[[], np.ndarray]
+    measure: Callable[[bool], MeasureGradient]
     probe: Probe
     u: dolfinx.fem.Function
     label: str
@@ -418,10 +418,8 @@ class AngleOutputs:
         forces = self.job.probe.muscle_forces()
         for m, f in forces.items():
             self.recorder.add_series_point(f"{m}_force", x, float(np.linalg.norm(f)), "deg", "N")
-        target = self.job.actuator.target
-        self.recorder.add_series_point(
-            "actuation", x, float(np.linalg.norm(target[0]) if target else 0.0), "deg", "m"
-        )
+        travel = float(np.linalg.norm(self.job.actuator.translation))
+        self.recorder.add_series_point("actuation", x, travel, "deg", "m")
 
     def stall_note(self, final: float) -> str:
         """Where the contact and the shaft had got to at the last state reached (``final``, rad)."""
@@ -460,7 +458,7 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
                 job.contact,
                 job.actuator,
                 direction,
-                outputs.angle,
+                job.measure,
                 model.params,
                 outputs,
                 job.label,

@@ -21,7 +21,7 @@ from shoulder_fem.io.output import atomic_write_json, atomic_write_text, to_json
 
 ANGLE_MATCH_DEG = 0.05
 """Two runs reached the same final angle if they differ by less than this [deg] (each is
-within the scene's ``angle_tolerance`` of its last target, 0.01 deg by default)."""
+hit to within 1e-6 deg of its last target by the angle-controlled steps)."""
 
 
 def _notes(

@@ -205,18 +205,25 @@ class ControlledSystem:
         """The travel control (:meth:`set_control`), or None."""
         return self._problem.control
 
-    def control_tangent(self) -> PETSc.Vec:
+    def control_tangent(self, refresh: bool = False) -> PETSc.Vec:
         """d(reduced state)/d(target) after a converged controlled solve (collective).
 
         One back-substitution with the factorization of the solve's last Jacobian:
         ``J v = s e`` where ``e`` is the control row and ``s`` its scale (the derivative of the
         control residual with respect to the target is ``-s``). Counted as a linear solve, its
-        time in the Newton time.
+        time in the Newton time. ``refresh``: evaluate and factorize J at the current state
+        first (e.g. after :meth:`set_control`, when the last Jacobian had no control row).
         """
         control = self._problem.control
         if control is None:
             raise ValueError(f"{self.prefix}: control_tangent needs set_control first")
         t0 = time.perf_counter()
+        if refresh:
+            J = self._problem.J
+            x = self._problem.x_from_state(targets=False).copy()
+            self.snes.computeJacobian(x, J, J)
+            self.snes.getKSP().setOperators(J, J)
+            x.destroy()
         v = control_tangent(self.snes.getKSP(), self._problem.J, self._problem.layout, control)
         self.stats.snes_s += time.perf_counter() - t0
         self.stats.linear_solves += 1

@@ -60,6 +60,10 @@ class RigidSolveStats(SolveStats):
 
     residual_histories: list[list[float]] = field(default_factory=list)
     snes_s: float = 0.0
+    #: Newton steps shortened because their trial state was not admissible, and the halvings
+    #: (:class:`~.guard.TrialGuard`).
+    shortened_steps: int = 0
+    step_halvings: int = 0
     residual_s: float = 0.0
     jacobian_s: float = 0.0
     fe_assembly_s: float = 0.0

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import dolfinx
 import numpy as np
@@ -21,6 +21,7 @@ from shoulder_fem.engine.rigid_system.bodies import RigidBody, Tie
 from shoulder_fem.engine.rigid_system.control import ControlledSystem
 from shoulder_fem.engine.rigid_system.deformable import DeformablePart
 from shoulder_fem.engine.rigid_system.dynamics import StepState
+from shoulder_fem.engine.rigid_system.guard import TrialGuard
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout, check_topology
 from shoulder_fem.engine.rigid_system.problem import ReducedProblem, RigidSolveStats, timed
 from shoulder_fem.engine.rigid_system.reports import SystemReports
@@ -128,6 +129,9 @@ class RigidSystem(SystemReports, ControlledSystem):
             tied to stiff bone make the residual quadratic in rotations of a mode that only
             soft springs hold, which ruins the convergence of a chord (one-factorization)
             iteration. Static only.
+        admissible: Callable() -> bool: whether the current state may be a Newton trial state
+            (e.g. no inverted element). Newton steps to inadmissible states, or to states with a
+            non-finite residual, are halved inside the line search (:class:`~.guard.TrialGuard`).
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -156,6 +160,7 @@ class RigidSystem(SystemReports, ControlledSystem):
         time: float = 0.0,
         contact=None,
         linear_ties: bool = False,
+        admissible: Callable[[], bool] | None = None,
     ) -> None:
         self.bodies = list(bodies)
         self.linear_ties = bool(linear_ties)
@@ -197,6 +202,14 @@ class RigidSystem(SystemReports, ControlledSystem):
         )
         self.prefix = unique_prefix(name)
         self.snes, self._linesearch = create_snes(self._problem, self.prefix, options)
+        # every Newton step is shortened until its trial state is admissible with a finite
+        # residual (guard.py); the guard hands its residual to the line search
+        problem = self._problem
+        self._guard = TrialGuard(
+            problem.update_state, problem.residual, admissible, self.stats, self.comm
+        )
+        self.snes.setFunction(self._guard.residual, problem.r)
+        self.snes.setLineSearchPreCheck(self._guard)
 
     @property
     def dynamic(self) -> bool:
@@ -211,6 +224,7 @@ class RigidSystem(SystemReports, ControlledSystem):
     @linesearch.setter
     def linesearch(self, kind: str) -> None:
         set_from_options(self.snes, {"snes_linesearch_type": kind}, ksp=False)
+        self.snes.setLineSearchPreCheck(self._guard)
         self._linesearch = kind
 
     # ---- solves ------------------------------------------------------------------------------
@@ -343,6 +357,7 @@ class RigidSystem(SystemReports, ControlledSystem):
     def destroy(self) -> None:
         """Free the PETSc objects."""
         self.snes.destroy()
+        self._guard.destroy()
         self._problem.destroy()
         if self._fe is not None:
             self._fe.destroy()

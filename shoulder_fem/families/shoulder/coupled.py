@@ -27,6 +27,7 @@ from shoulder_fem.families.shoulder.measures import Probe, VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel, displacement
 from shoulder_fem.families.shoulder.outputs import save_results, unknowns
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
+from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.families.shoulder.twist import fitted_twist
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
@@ -52,6 +53,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     actuator = RigidBody("actuator", origin, prescribed=True)
     bodies.append(actuator)
     ties.append(Tie("actuator", "subscapularis_origin"))
+    check = SoftTissueCheck(u, ct_)
     system = RigidSystem(
         bodies,
         springs,
@@ -63,6 +65,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         options=SNES_OPTIONS | dict(run.options or {}),
         form_compiler_params=p.quadrature(),
         contact=contact,
+        admissible=check,
     )
     humerus_dofs = dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(S.HUMERUS.id))
     humerus_dofs = humerus_dofs[humerus_dofs < V.dofmap.index_map.size_local]
@@ -83,6 +86,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         probe=probe,
         u=u,
         label="coupled",
+        check=check,
         stage="rotation",
         stress=stress_vm,
     )

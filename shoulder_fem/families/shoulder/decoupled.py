@@ -35,6 +35,7 @@ from shoulder_fem.families.shoulder.model import (
 from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
 from shoulder_fem.families.shoulder.part2 import run_part2
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
+from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.families.shoulder.twist import rigid_twist
 from shoulder_fem.meshes import shoulder as S
 
@@ -181,6 +182,7 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
     actuator = RigidBody("actuator", origin, prescribed=True)
     springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
     ties, tied = part1_ties(ft, ct_, p)
+    check = SoftTissueCheck(u, ct_)
     system = RigidSystem(
         [humerus, scapula, actuator],
         springs,
@@ -192,6 +194,7 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
         options=SNES_OPTIONS | dict(run.options or {}),
         form_compiler_params=p.quadrature(),
         contact=contact,
+        admissible=check,
     )
     transfer = Transfer(reference=scapula_ref)
     record = _TransferRecorder(V, ft, system, (scapula, humerus), transfer)
@@ -205,6 +208,7 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
         probe=probe,
         u=u,
         label="part1",
+        check=check,
         stage="part1",
         on_output=record,
     )

@@ -31,6 +31,7 @@ from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, un
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
 from shoulder_fem.families.shoulder.outputs import record_time_split, record_von_mises
+from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.io.results import Recorder
 
@@ -38,6 +39,7 @@ __all__ = [
     "ACTUATION_DIRECTION",
     "ANGLE_SCALE",
     "FALLBACK_LINESEARCH",
+    "FALLBACK_MAX_IT",
     "SNES_OPTIONS",
     "TARGET_ITERATIONS",
     "AngleOutputs",
@@ -57,18 +59,23 @@ ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 #: them. Newton converges quadratically to the end: the contact's tangent includes the change
 #: of its segments as the surfaces slide (:mod:`shoulder_fem.engine.contact.segment_tangent`;
 #: without it the tail was linear, 0.44-0.56 per iteration at coarse). Full Newton steps
-#: (``basic``) are the fastest almost everywhere, but cycled between two contact states
-#: (period-2 residual) on the way to 55 deg at the coarse level; there a step that fails
-#: is retried with ``FALLBACK_LINESEARCH`` (a secant minimisation of |F|^2 along the Newton
-#: direction) before it is cut back. ``l2`` everywhere is 3-5 times slower in the coupled
-#: solve (residual decrease ~0.9 per iteration from the first step on; ``bt`` and ``cp`` too).
+#: (``basic``; each shortened by the trial-state guard when it would invert a tissue element
+#: or give a non-finite residual) are the fastest almost everywhere: the steps take 3-6
+#: iterations. Where a full step overshoots from one contact state into another (part 1 at
+#: coarse, 30 -> 35 deg: 60 guarded iterations without converging), the ``l2`` line search (a
+#: secant minimisation of |F|^2 along the Newton direction) converges in 4: a solve that has
+#: not converged in ``snes_max_it`` = 15 iterations is retried from the step's start with
+#: ``FALLBACK_LINESEARCH`` and up to ``FALLBACK_MAX_IT`` iterations before the step is cut
+#: back. ``l2`` everywhere is 3-5 times slower in the coupled solve (residual decrease ~0.9
+#: per iteration from the first step on; ``bt`` and ``cp`` too).
 SNES_OPTIONS = {
     "snes_rtol": 1e-8,
     "snes_atol": 1e-3,
-    "snes_max_it": 60,
+    "snes_max_it": 15,
     "snes_linesearch_type": "basic",
 }
 FALLBACK_LINESEARCH = "l2"
+FALLBACK_MAX_IT = 60
 
 #: Residual of the angle equation per radian of twist error (N/rad): with ``snes_atol`` =
 #: 1e-3 N a converged step is within 1e-8 rad (6e-7 deg) of its target angle.
@@ -132,6 +139,7 @@ class AngleStepper:
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE
         )
         self.theta = control.target  # the unloaded state's own angle
+        self.tangent = self.system.control_tangent(refresh=True)  # the first step's predictor
 
     def travel(self) -> float:
         """The plate's travel along its direction (m)."""
@@ -296,10 +304,13 @@ def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: Ste
         system.restore(snap)
         predict()
         system.linesearch = FALLBACK_LINESEARCH
+        rtol, atol, stol, max_it = system.snes.getTolerances()
+        system.snes.setTolerances(max_it=FALLBACK_MAX_IT)
         try:
             return system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search)")
         finally:
             system.linesearch = original
+            system.snes.setTolerances(max_it=max_it)
 
 
 # ---- one stepping with its outputs ----------------------------------------------------------
@@ -319,6 +330,8 @@ class Stepping:
         probe: The per-output measurements on ``u``'s mesh.
         u: The displacement (m); its P1 interpolation is written to ``<label>.xdmf``.
         label: Names the progress messages, the fields file and the time-split probes.
+        check: The soft tissues' volume ratios (recorded at each output) and the admissibility
+            of the Newton trial states; None: not recorded.
         stage: The resource monitor's stage of the stepping.
         stress: The scapula's von Mises stress, recorded at each output; None: not recorded.
         on_output: Called with the angle (rad) at each output, after the series.
@@ -333,6 +346,7 @@ class Stepping:
     u: dolfinx.fem.Function
     label: str
     stage: str
+    check: SoftTissueCheck | None = None
     stress: VonMises | None = None
     on_output: Callable[[float], None] | None = None
 
@@ -377,6 +391,10 @@ class AngleOutputs:
         x = math.degrees(target)
         self._joint_series(x, deg, p, t)
         self._muscle_series(x)
+        if job.check is not None:  # how far the tissues are from the trial states' bounds
+            lo, hi = job.check.j_range()
+            self.recorder.add_series_point("soft_tissue_min_j", x, lo, "deg", "1")
+            self.recorder.add_series_point("soft_tissue_max_j", x, hi, "deg", "1")
         if job.on_output is not None:
             job.on_output(target)
         if job.stress is not None:
@@ -470,6 +488,8 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("failed_steps", log.failed_steps, "1")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
+    recorder.set_probe("shortened_newton_steps", job.system.stats.shortened_steps, "1")
+    recorder.set_probe("newton_step_halvings", job.system.stats.step_halvings, "1")
     recorder.add_solver_counts(job.system.stats, StepperStats(log.steps, log.failed_steps))
     record_time_split(recorder, job.label, job.system, job.contact)
     if stop is not None:

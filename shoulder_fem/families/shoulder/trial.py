@@ -1,0 +1,79 @@
+"""Which Newton trial states of the shoulder are admissible (the line search's pre-check).
+
+A trial state is admissible when no soft-tissue element is inverted (J = det F > 0) and the
+isochoric invariant I1bar stays below :data:`TRIAL_I1BAR_MAX`, checked at the P2 element's ten
+nodes and its centroid. Inverted elements, where the laws are not defined, and the
+Veronda-Westmann exponential far beyond any physical stretch (I1bar - 3 = 55 gave residuals of
+1e55 and then NaN) are thereby never evaluated: the Newton step is halved instead
+(:class:`~shoulder_fem.engine.rigid_system.guard.TrialGuard`). The bounds act on trial states
+only, never on the equations, and lie far outside the converged states (J in 0.47-2.7, measured
+at every output: series ``soft_tissue_min_j``, ``soft_tissue_max_j``).
+"""
+
+from __future__ import annotations
+
+import dolfinx
+import numpy as np
+import ufl
+from mpi4py import MPI
+
+from shoulder_fem.forms.kinematics import deformation_gradient
+from shoulder_fem.meshes import shoulder as S
+
+__all__ = ["TRIAL_I1BAR_MAX", "SoftTissueCheck"]
+
+#: The largest I1bar allowed in a Newton trial state (beta (I1bar - 3) = 100 for the muscles:
+#: an exponential factor of 3e43, still far from overflowing).
+TRIAL_I1BAR_MAX = 103.0
+
+#: The reference points of the check: a tetrahedron's vertices, edge midpoints and centroid.
+_VERTICES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+_EDGES = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+POINTS = np.vstack(
+    [_VERTICES, [(_VERTICES[a] + _VERTICES[b]) / 2 for a, b in _EDGES], _VERTICES.mean(axis=0)]
+)
+
+
+class SoftTissueCheck:
+    """J and I1bar of the soft tissues of ``u`` at :data:`POINTS` (collective).
+
+    Args:
+        u: The displacement (P2).
+        cell_tags: The mesh's cell tags (soft tissues: :data:`meshes.shoulder.SOFT`).
+    """
+
+    def __init__(self, u: dolfinx.fem.Function, cell_tags: dolfinx.mesh.MeshTags):
+        mesh = u.function_space.mesh
+        self.comm = mesh.comm
+        n_owned = mesh.topology.index_map(3).size_local
+        soft = np.isin(cell_tags.values, [m.id for m in S.SOFT]) & (cell_tags.indices < n_owned)
+        self.cells = np.ascontiguousarray(cell_tags.indices[soft], dtype=np.int32)
+        F = deformation_gradient(u)
+        J = ufl.det(F)
+        i1bar = ufl.tr(F.T * F) / abs(J) ** (2.0 / 3.0)
+        self.expr = dolfinx.fem.Expression(ufl.as_vector([J, i1bar]), POINTS)
+
+    def values(self) -> tuple[np.ndarray, np.ndarray]:
+        """(J, I1bar) at the owned soft-tissue cells' points, flattened (this rank's)."""
+        if len(self.cells) == 0:
+            return np.zeros(0), np.zeros(0)
+        out = self.expr.eval(self.cells).reshape(len(self.cells), len(POINTS), 2)
+        return out[:, :, 0].ravel(), out[:, :, 1].ravel()
+
+    def j_range(self) -> tuple[float, float]:
+        """The smallest and largest J over all ranks."""
+        J, _ = self.values()
+        lo = self.comm.allreduce(float(J.min()) if len(J) else np.inf, op=MPI.MIN)
+        hi = self.comm.allreduce(float(J.max()) if len(J) else -np.inf, op=MPI.MAX)
+        return lo, hi
+
+    def admissible(self) -> bool:
+        """Whether the current state may be a Newton trial state (same on every rank)."""
+        J, i1bar = self.values()
+        with np.errstate(invalid="ignore"):
+            ok = bool(np.all((J > 0.0) & (i1bar < TRIAL_I1BAR_MAX)))
+        return bool(self.comm.allreduce(ok, op=MPI.LAND))
+
+    def __call__(self) -> bool:
+        """:meth:`admissible` (the callable that :class:`RigidSystem` takes)."""
+        return self.admissible()

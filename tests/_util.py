@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from shoulder_fem.engine.springs import GROUND, Spring
+
 
 def quadratic_orders(history: list[float], floor: float) -> list[float]:
     """Order estimates log ρ_{k+1} / log ρ_k (ρ = r / max r) where ρ_k < 0.2, r_{k+1} > floor."""
@@ -69,3 +71,25 @@ def taylor_rates(system, rng, size: float) -> tuple[list[float], np.ndarray]:
         remainders.append(r1.norm())
     e = np.array(remainders)
     return remainders, np.log(e[:-1] / e[1:]) / np.log(2.0)
+
+
+def six_springs(k: float = 1000.0, arm: float = 0.05, length: float = 0.1):
+    """Six springs to the ground, at ±arm along each axis, each pointing along the next axis.
+
+    Returns the springs and the small-rotation stiffness of the arrangement (hand solution):
+    K = Σ k_s b_s b_sᵀ, b_s = (n_s, p_s × n_s), n_s the spring's direction, p_s its body point
+    (relative to the reference point, the origin): a small motion (t, θ) stretches spring s by
+    b_s · (t, θ), and the arrangement's virtual work gives K.
+    """
+    springs, K = [], np.zeros((6, 6))
+    for i in range(3):
+        for sign in (1.0, -1.0):
+            p = sign * arm * np.eye(3)[i]
+            n = np.eye(3)[(i + 1) % 3]
+            ks = k * (1 + i)
+            springs.append(
+                Spring(f"s{i}{'+' if sign > 0 else '-'}", "b", p, GROUND, p + length * n, ks)
+            )
+            b = np.r_[n, np.cross(p, n)]
+            K += ks * np.outer(b, b)
+    return springs, K

@@ -87,17 +87,23 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
     angles = np.arange(0.0, FINAL + 0.5 * EVERY, EVERY)
     for method, result in study["results"].items():
         assert result.status == "ok", (method, result.data.get("message"))
-        assert result.probes["final_angle_deg"] == pytest.approx(FINAL, abs=0.011)
+        assert result.probes["final_angle_deg"] == pytest.approx(FINAL, abs=1e-9)
+        # angle-controlled steps: no cut-back, every solve converged (issue 19)
+        assert result.probes["failed_steps"] == 0, method
         for name in SERIES:
             x, y = _series(result, name)
             assert np.allclose(x, angles), (method, name, x)
             assert np.all(np.isfinite(y)), (method, name, y)
-        # the measured humeral angle is the target within the scene's tolerance (0.01 deg),
-        # except at 0 deg: the initial seating of the faceted cartilages turns it a little
-        # (measured 0.13 deg at coarse)
+        # the measured humeral angle hits each target to 1e-6 deg (the angle is an equation of
+        # the Newton system, residual scale 1e5 N/rad, atol 1e-3 N: 6e-7 deg at most), except
+        # at 0 deg: the initial seating of the faceted cartilages turns it a little (measured
+        # 0.38 deg at coarse, with the plate at rest)
         x, y = _series(result, "humeral_angle")
-        assert np.allclose(y[1:], x[1:], atol=0.011), (method, y)
+        assert np.allclose(y[1:], x[1:], rtol=0, atol=1e-6), (method, y - x)
         assert abs(y[0]) < 0.5
+        # the soft tissues at equilibrium are far from the trial states' bounds (J > 0)
+        _, jmin = _series(result, "soft_tissue_min_j")
+        assert np.all(jmin > 0.3), (method, jmin)
         # the subscapularis pulls harder as the humerus turns (0.4 -> 74 N measured over
         # 0-60 deg; 0.5 N is a floor, not a fit); the contact is loaded
         _, fsub = _series(result, "subscapularis_force")
@@ -124,6 +130,20 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
         assert (study["base"] / "report" / name).stat().st_size > 10_000, name
     on_disk = json.loads((study["base"] / "report" / "report.json").read_text())
     assert on_disk == report  # report.json is what write_report returned
+
+
+def test_newton_steps_into_inadmissible_states_are_shortened_not_cut_back(study):
+    """Part 1 at coarse: the full Newton step from 30 towards 35 deg overshoots from one contact
+    state into another and, before the trial-state guard, ended in a NaN residual and a
+    cut-back. Now such steps are shortened inside the solve (11 measured) and no step of
+    either method is cut back; at most about 6 Newton iterations per step on average
+    (measured 4.4 coupled, 4.5 decoupled)."""
+    part1 = study["results"]["decoupled"].probes
+    assert part1["shortened_newton_steps"] >= 1 and part1["newton_step_halvings"] >= 1
+    for method, result in study["results"].items():
+        p = result.probes
+        assert p["failed_steps"] == 0, method
+        assert p["newton_iterations"] <= 6.5 * p["steps"], (method, p["newton_iterations"])
 
 
 def test_decoupled_matches_coupled_within_the_coarse_tolerances(study):
@@ -371,30 +391,31 @@ def test_without_horizontal_elements_the_humerus_swings(study, comm_tmp):
 
 
 def test_a_stalled_rotation_ends_incomplete_and_keeps_the_angles_reached(comm_tmp):
-    """Steps of 10 deg with one cutback allowed: past 10 deg the secant step (10.3 mm of
-    actuation) overflows the muscles' exponential law and its cutback (5.2 mm) inverts muscle
-    elements (NaN residual; measured, the log of this test); the run ends
-    ``incomplete`` at 10 deg with a message naming the step and the reason; the outputs up to
-    10 deg are kept (part 2 runs on them) and the report states the angle reached."""
+    """Asked for 80 deg, part 1 stalls where the glenoid reaches the rim of the humeral
+    cartilage (measured at coarse: 65.07 deg, the contact up to 69.8 deg from the cartilage's
+    axis, which ends at 70.1 deg): with one cutback allowed the run ends ``incomplete`` after
+    more than 2 x max_cutbacks failed tries towards 70 deg, with a message naming the step and
+    the reason; the outputs up to 60 deg are kept (part 2 runs on them) and the report states
+    the angle reached."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(
-        ["final_angle=30deg", "angle_step=10deg", "max_actuation_step=16mm", "max_cutbacks=1"]
+        ["final_angle=80deg", "max_cutbacks=1"]
     )
     out = comm_tmp / "stalled"
     result = api.run(scene, "decoupled", "coarse", out)
     assert result.status == "incomplete"
     reached = result.probes["final_angle_deg"]
-    assert reached == pytest.approx(10.0, abs=0.011)
+    assert 60.0 < reached < 70.0
     message = result.data["message"]
-    assert f"stopped at {reached:.2f} deg of 30 deg" in message, message
-    assert "towards 20.0 deg did not converge after 1 cutbacks" in message, message
-    # where the contact had got to on the humeral cartilage, and the swing, at 10 deg
+    assert f"stopped at {reached:.2f} deg of 80 deg" in message, message
+    assert "towards 70.0 deg did not converge" in message, message
+    # where the contact had got to on the humeral cartilage, and the swing
     assert "pressed on the humeral cartilage up to" in message, message
     # humeral_cap_half_angle_deg at coarse: the scene's 70 deg, measured on the mesh's nodes
     assert "the cartilage ends at 70.1 deg" in message, message
     assert "the shaft had swung" in message, message
     assert result.probes["failed_steps"] >= 2  # the failed step and its cutback
     x, _ = _series(result, "max_pressure")
-    assert np.allclose(x, [0.0, 10.0]), x
+    assert np.allclose(x, np.arange(0.0, 61.0, 10.0)), x
     x2, vm = _series(result, "scapula_max_von_mises")  # part 2 on the angles reached
     assert np.allclose(x2, x) and np.all(np.isfinite(vm)) and np.all(vm > 0)
     with np.load(out / "shoulder.npz") as npz:

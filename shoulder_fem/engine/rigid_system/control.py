@@ -134,8 +134,8 @@ def set_control_rows(
         nz = np.flatnonzero(g_red.array_r)
         cols.append((layout.start + nz).astype(PETSc.IntType))
         vals.append(g_red.array_r[nz])
-    for b, d6 in grad.bodies.items():  # spatial ω -> φ: δω = J_l(φ) δφ
-        cols.append(layout.rigid_cols(b))
+    for b, d6 in grad.bodies.items() if comm.rank == 0 else ():  # the same on every rank
+        cols.append(layout.rigid_cols(b))  # spatial ω -> φ: δω = J_l(φ) δφ
         vals.append(np.concatenate([d6[:3], left_jacobian(phi[b]).T @ d6[3:]]))
     gathered = comm.gather((np.concatenate(cols), np.concatenate(vals)), root=0)
     rows = layout.rigid_cols(control.body)[:3] if comm.rank == 0 else []

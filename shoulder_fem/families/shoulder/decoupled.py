@@ -37,6 +37,7 @@ from shoulder_fem.families.shoulder.part2 import run_part2
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.families.shoulder.twist import rigid_twist
+from shoulder_fem.io.resources import release_memory
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["HUMERUS_TIES", "SCAPULA_LOAD_SURFACES", "Transfer", "run_decoupled", "run_part1"]
@@ -56,6 +57,9 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
     """Method #2: part 1 (rigid bones), then part 2 (scapula, linear, floating frame)."""
     layout = spring_layout(model.params)
     data, transfer = run_part1(model, run, layout)
+    # part 2 holds the scapula alone: part 1's mesh, spaces and forms go before it starts
+    del model.meshes["rigid-bone"]
+    release_memory()
     with run.monitor.stage("part2"):
         stress_vm, mesh2, ft2 = run_part2(model, run, transfer, layout, data)
     save_results(model, data, stress_vm, mesh2, ft2, run.fields.parent / "shoulder.npz")

@@ -74,7 +74,7 @@ SNES_OPTIONS = {
     "snes_max_it": 15,
     "snes_linesearch_type": "basic",
 }
-FALLBACK_LINESEARCH = "l2"
+FALLBACK_LINESEARCH = "bt"
 FALLBACK_MAX_IT = 60
 
 #: Residual of the angle equation per radian of twist error (N/rad): with ``snes_atol`` =
@@ -103,7 +103,9 @@ class StepLog:
 class AngleStepper:
     """Steps of the humeral angle, each one Newton solve with the actuator's travel unknown.
 
-    A step whose Newton solve fails is cut back (halved) up to ``max_cutbacks`` times in a row;
+    A step whose Newton solve fails is cut back (halved) up to ``max_cutbacks`` times in a row,
+    and at most 2 x ``max_cutbacks`` steps may fail on the way to one output angle (a short step
+    that converges resets the first count, not the second: at a wall the run ends all the same);
     then the stepping stops at the last converged state.
 
     Attributes:
@@ -151,13 +153,14 @@ class AngleStepper:
         Returns:
             None, or why the stepping stopped (the state is the last converged one).
         """
-        cuts = 0
+        cuts = fails = 0
         while goal - self.theta > 1e-12:
             step = min(self.increment, goal - self.theta)
             clipped = step < self.increment
             err, its = self.try_step(self.theta + step)
             if err is not None:
                 cuts += 1
+                fails += 1
                 self.increment = 0.5 * step
                 logger.warning(
                     "%s: step %.3f -> %.3f deg failed (%s); cutback %d/%d",
@@ -168,8 +171,8 @@ class AngleStepper:
                     cuts,
                     self.max_cut,
                 )
-                if cuts > self.max_cut:
-                    return self._stalled(goal, err)
+                if cuts > self.max_cut or fails > 2 * self.max_cut:
+                    return self._stalled(goal, err, cuts, fails)
                 continue
             cuts = 0
             factor = float(np.clip(math.sqrt(TARGET_ITERATIONS / max(its, 1)), 0.5, 2.0))
@@ -177,12 +180,16 @@ class AngleStepper:
                 self.increment = step * factor
         return None
 
-    def _stalled(self, goal: float, err: ConvergenceError) -> str:
+    def _stalled(self, goal: float, err: ConvergenceError, cuts: int, fails: int) -> str:
+        why = (
+            f"after {self.max_cut} cutbacks"
+            if cuts > self.max_cut
+            else f"in {fails} tries (more than 2 x max_cutbacks)"
+        )
         return (
             f"{self.label}: stopped at {math.degrees(self.theta):.2f} deg of "
             f"{math.degrees(self.final):.0f} deg: the step towards "
-            f"{math.degrees(goal):.1f} deg did not converge after {self.max_cut} cutbacks "
-            f"({err.reason})"
+            f"{math.degrees(goal):.1f} deg did not converge {why} ({err.reason})"
         )
 
     def try_step(self, target: float) -> tuple[ConvergenceError | None, int]:

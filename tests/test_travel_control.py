@@ -1,0 +1,168 @@
+"""Travel control (an unknown travel and its equation in the Newton system) and the trial-state
+guard (Newton steps shortened inside the line search): hand solutions and a 1-D SNES.
+
+Cheap; serial and under ``mpirun -n 2`` (the rigid DOFs live on rank 0).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from _util import six_springs
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
+from shoulder_fem.engine.rigid_system.control import MeasureGradient
+from shoulder_fem.engine.rigid_system.guard import TrialGuard
+from shoulder_fem.engine.solver import ConvergenceError, SolveStats, set_from_options
+from shoulder_fem.engine.springs import Spring
+
+pytestmark = pytest.mark.mpi
+
+K_LINK = 400.0  # N/m, the spring from the plate to the body
+SCALE = 1e3  # N per m of the measure
+
+
+def _plate_and_body():
+    """Body "b" on the six springs, pulled along x by a link spring from a prescribed plate "a"
+    (rest length 0.3 m, unstressed at rest); the measure is b's x translation."""
+    springs, K = six_springs()
+    b = RigidBody("b", np.zeros(3))
+    a = RigidBody("a", np.array([0.3, 0.0, 0.0]), prescribed=True)
+    link = Spring("link", "b", (0.0, 0, 0), "a", (0.3, 0, 0), K_LINK, rest_length=0.3)
+    system = RigidSystem([b, a], [*springs, link], comm=MPI.COMM_WORLD)
+
+    def measure(with_gradient: bool) -> MeasureGradient:
+        out = MeasureGradient(float(b.translation[0]))
+        if with_gradient:
+            out.bodies[0] = np.array([1.0, 0, 0, 0, 0, 0])
+        return out
+
+    return system, a, b, measure, K
+
+
+def test_the_travel_that_gives_a_target_by_hand():
+    """Linear regime: b's x translation x_b = C k (d - x_b) with C = (K⁻¹)_xx, so the plate's
+    travel is d = x_b (1 + 1/(k C)) and d(travel)/d(target) is the same factor. The target is
+    hit to snes_atol / scale, the plate stays on its line, and the tangent predictor of the next
+    target is exact to second order: the next solve needs at most one Newton iteration."""
+    system, a, b, measure, K = _plate_and_body()
+    system.solve("rest")
+    control = system.set_control("a", [1.0, 0, 0], measure, SCALE)
+    assert control.target == pytest.approx(0.0, abs=1e-15)
+    factor = 1.0 + 1.0 / (K_LINK * np.linalg.inv(K)[0, 0])
+    control.target = 1e-5
+    system.solve("1e-5 m")
+    assert abs(b.translation[0] - 1e-5) <= 1e-12 / SCALE
+    assert control.travel(a.translation) == pytest.approx(factor * 1e-5, rel=1e-4)
+    assert np.abs(a.translation[1:]).max() < 1e-15  # on its line
+    tangent = system.control_tangent()
+    k = system._problem.layout.rigid_cols(1)[0]  # the plate's x row (rank 0 owns it)
+    lo, hi = tangent.getOwnershipRange()
+    dd = tangent.array_r[k - lo] if lo <= k < hi else None
+    dd = MPI.COMM_WORLD.bcast(dd, root=0)
+    assert dd == pytest.approx(factor, rel=1e-4)
+    system.predict(tangent, 1e-5)
+    control.target = 2e-5
+    its = system.solve("2e-5 m")
+    assert its <= 1 and abs(b.translation[0] - 2e-5) <= 1e-12 / SCALE
+    tangent.destroy()
+    system.destroy()
+
+
+def test_control_needs_a_prescribed_body():
+    system, _, _, measure, _ = _plate_and_body()
+    with pytest.raises(ValueError, match="needs a prescribed body, 'b' is not"):
+        system.set_control("b", [1.0, 0, 0], measure, SCALE)
+    system.destroy()
+
+
+# ---- the trial-state guard -------------------------------------------------------------------
+
+
+def _log_snes(guard: bool):
+    """Solve ln(x) = ln(2) from x = 10 with full Newton steps (one entry per rank).
+
+    Newton's first step lands at 10 - 10 ln(5) = -6.09, where ln is NaN. With ``guard`` the
+    trial-state guard (admissible: x > 0) is the line search's pre-check, wired as in
+    :class:`RigidSystem`. Returns (converged reason, x, the guard's counters, iterations).
+    """
+    comm = MPI.COMM_WORLD
+    x = PETSc.Vec().createMPI((1, comm.size), comm=comm)
+    r = x.duplicate()
+    state = {"x": None}
+
+    def update(v):
+        state["x"] = v.array_r.copy()
+
+    def residual(snes, v, out):
+        with np.errstate(invalid="ignore"):
+            out.array[:] = np.log(v.array_r) - math.log(2.0)
+
+    def jacobian(snes, v, A, P):
+        P.zeroEntries()
+        lo, _ = P.getOwnershipRange()
+        P.setValue(lo, lo, 1.0 / v.array_r[0])
+        P.assemble()
+
+    A = PETSc.Mat().createAIJ(((1, comm.size), (1, comm.size)), nnz=(1, 0), comm=comm)
+    snes = PETSc.SNES().create(comm)
+    stats = SolveStats()
+    stats.shortened_steps = stats.step_halvings = 0
+
+    def admissible() -> bool:
+        return bool(comm.allreduce(bool(np.all(state["x"] > 0)), op=MPI.LAND))
+
+    g = TrialGuard(update, residual, admissible, stats, comm) if guard else None
+    snes.setFunction(g.residual if guard else residual, r)
+    snes.setJacobian(jacobian, A, A)
+    if guard:
+        snes.setLineSearchPreCheck(g)
+    snes.setOptionsPrefix(f"logtest{int(guard)}_")
+    set_from_options(
+        snes,
+        {"snes_linesearch_type": "basic", "snes_atol": 1e-12, "snes_rtol": 0, "snes_max_it": 30}
+        | {"ksp_type": "preonly", "pc_type": "lu"},
+    )
+    x.set(10.0)
+    snes.solve(None, x)
+    out = (snes.getConvergedReason(), x.array_r.copy(), stats, snes.getIterationNumber())
+    for obj in (snes, A, x, r):
+        obj.destroy()
+    if g is not None:
+        g.destroy()
+    return out
+
+
+def test_a_step_into_nan_is_shortened_inside_the_solve():
+    """Without the guard the first full Newton step of ln(x) = ln(2) from 10 gives a NaN
+    residual and the solve ends (DIVERGED_FNORM_NAN); with it the step is halved once (to
+    x = 10 - 16.09/2 = 1.95 > 0) and Newton converges to 2 in the same SNES."""
+    reason, _, _, _ = _log_snes(guard=False)
+    assert reason == PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
+    reason, x, stats, its = _log_snes(guard=True)
+    assert reason > 0 and np.allclose(x, 2.0, rtol=1e-12), (reason, x)
+    assert stats.shortened_steps == 1 and stats.step_halvings == 1, vars(stats)
+    assert its <= 8
+
+
+def test_a_rigid_system_names_a_solve_that_cannot_be_rescued():
+    """A guard that admits nothing: every step is halved 20 times, the solve still ends with a
+    ConvergenceError naming the step (nothing hangs)."""
+    springs, _ = six_springs()
+    body = RigidBody("b", np.zeros(3), force=[1.0, 0, 0])
+    system = RigidSystem(
+        [body],
+        springs,
+        comm=MPI.COMM_WORLD,
+        admissible=lambda: False,
+        options={"snes_max_it": 3},
+    )
+    with pytest.raises(ConvergenceError, match="at never"):
+        system.solve("never")
+    assert system.stats.shortened_steps >= 1
+    assert system.stats.step_halvings == 20 * system.stats.shortened_steps
+    system.destroy()

@@ -35,7 +35,15 @@ from shoulder_fem.engine.contact.geometry import (
 from shoulder_fem.engine.contact.pair import ContactPair, normal_pressure
 from shoulder_fem.engine.contact.surfaces import Facets, MasterMesh
 
-__all__ = ["FD_STEP", "SegmentPairs", "segment_pair_forces", "segment_tangent_blocks"]
+__all__ = [
+    "FD_STEP",
+    "SegmentGeometry",
+    "SegmentPairs",
+    "segment_geometry",
+    "segment_loads",
+    "segment_pair_forces",
+    "segment_tangent_blocks",
+]
 
 #: Central-difference step (m) of the node coordinates.
 FD_STEP = 1e-8
@@ -99,6 +107,90 @@ class SegmentPairs:
         return out
 
 
+class SegmentGeometry:
+    """The points of the pairs' segments: what the residual takes from the cut, not from g.
+
+    Attributes:
+        rr: The pair of every point (Q,), sorted.
+        N1: The slave facet's linear functions at the points (Q, 3).
+        N: The slave facet's shape functions there (Q, ns_nodes).
+        Nm: The master nodes' functions there (Q, k - ns_nodes).
+        W: Weights (m², reference area of the slave) (Q,).
+        n: The master triangle's unit normal at every point (Q, 3).
+    """
+
+    def __init__(self, rr, N1, N, Nm, W, n):
+        self.rr, self.N1, self.N, self.Nm, self.W, self.n = rr, N1, N, Nm, W, n
+
+    def take(self, src: np.ndarray) -> SegmentGeometry:
+        """The points of the pairs ``src`` (pair i of the result is pair ``src[i]`` here)."""
+        counts = np.bincount(self.rr, minlength=len(src) and int(src.max()) + 1)[src]
+        first = np.r_[0, np.cumsum(np.bincount(self.rr))][src]
+        rr = np.repeat(np.arange(len(src)), counts)
+        idx = np.repeat(first - (np.cumsum(counts) - counts), counts) + np.arange(len(rr))
+        return SegmentGeometry(
+            rr, self.N1[idx], self.N[idx], self.Nm[idx], self.W[idx], self.n[idx]
+        )
+
+
+def segment_geometry(
+    pp: SegmentPairs, Y: np.ndarray, rule: tuple[np.ndarray, np.ndarray], ns_nodes: int
+) -> SegmentGeometry | None:
+    """The segments' points of the pairs at their nodes' positions ``Y`` (M, k, 3), or None.
+
+    Only the slave piece's vertices (``pp.cols``) and the master triangle's (``pp.m_vert``)
+    move them: the other nodes enter the residual through the gap alone.
+    """
+    rows = np.arange(len(Y))[:, None]
+    P = Y[rows, pp.cols]
+    tri = Y[rows, ns_nodes + pp.m_vert]
+    nsv = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    nsv /= np.linalg.norm(nsv, axis=1)[:, None]
+    s2, m2, poly, cnt = overlap_polygons(P, nsv, tri)
+    rr, pts, W = fan_rule(poly, cnt, s2, rule)
+    if len(rr) == 0:
+        return None
+    W = W * pp.ref_area[rr]
+    lam_s = barycentric_2d(pts, s2[rr])
+    beta = barycentric_2d(pts, m2[rr])
+    N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[pp.cols[rr]])
+    N = N1 if ns_nodes == 3 else p2_shape(N1)
+    if pp.tri_mu is None:
+        Nm = beta
+    else:
+        Nm = p2_shape(np.einsum("qk,qkj->qj", beta, pp.tri_mu[rr]))
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[rr]
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    return SegmentGeometry(rr, N1, N, Nm, W, n)
+
+
+def segment_loads(
+    pair: ContactPair,
+    geo: SegmentGeometry | None,
+    Y: np.ndarray,
+    lam_f: np.ndarray,
+    ns_nodes: int,
+) -> np.ndarray:
+    """Residual contributions (N) of the pairs, (M, k, 3), at ``Y`` with the points ``geo``."""
+    R = np.zeros_like(Y)
+    if geo is None:
+        return R
+    rr, N, Nm, n = geo.rr, geo.N, geo.Nm, geo.n
+    Yr = Y[rr]
+    xq = np.einsum("qa,qai->qi", N, Yr[:, :ns_nodes])
+    xm = np.einsum("qa,qai->qi", Nm, Yr[:, ns_nodes:])
+    g = np.einsum("qi,qi->q", xq - xm, n)
+    lam = np.einsum("qa,qa->q", geo.N1, lam_f[rr])
+    p, _ = normal_pressure(pair, g, lam)
+    p = np.where(g >= -pair.search_depth, p, 0.0)
+    f = (p * geo.W)[:, None] * n
+    coef = np.hstack([N, -Nm])
+    C = -coef[:, :, None] * f[:, None, :]
+    starts = np.r_[0, np.flatnonzero(np.diff(rr)) + 1]  # rr is sorted (fan_rule)
+    R[rr[starts]] = np.add.reduceat(C, starts, axis=0)  # np.add.at is ten times slower
+    return R
+
+
 def segment_pair_forces(
     pair: ContactPair,
     pp: SegmentPairs,
@@ -113,43 +205,29 @@ def segment_pair_forces(
     cutting, rule, gaps and pressures as :func:`~.points.segment_points` and
     :func:`~.evaluation.evaluate_pair` (frictionless), restricted to each pair.
     """
-    M = len(Y)
-    R = np.zeros_like(Y)
-    rows = np.arange(M)[:, None]
-    P = Y[rows, pp.cols]
-    tri = Y[rows, ns_nodes + pp.m_vert]
-    nsv = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-    nsv /= np.linalg.norm(nsv, axis=1)[:, None]
-    s2, m2, poly, cnt = overlap_polygons(P, nsv, tri)
-    rr, pts, W = fan_rule(poly, cnt, s2, rule)
-    if len(rr) == 0:
-        return R
-    W = W * pp.ref_area[rr]
-    lam_s = barycentric_2d(pts, s2[rr])
-    beta = barycentric_2d(pts, m2[rr])
-    N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[pp.cols[rr]])
-    N = N1 if ns_nodes == 3 else p2_shape(N1)
-    if pp.tri_mu is None:
-        Nm = beta
-    else:
-        Nm = p2_shape(np.einsum("qk,qkj->qj", beta, pp.tri_mu[rr]))
-    Yr = Y[rr]
-    xq = np.einsum("qa,qai->qi", N, Yr[:, :ns_nodes])
-    xm = np.einsum("qa,qai->qi", Nm, Yr[:, ns_nodes:])
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[rr]
-    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-    g = np.einsum("qi,qi->q", xq - xm, n)
-    lam = np.einsum("qa,qa->q", N1, lam_f[rr])
-    p, _ = normal_pressure(pair, g, lam)
-    p = np.where(g >= -pair.search_depth, p, 0.0)
-    f = (p * W)[:, None] * n
-    coef = np.hstack([N, -Nm])
-    C = -coef[:, :, None] * f[:, None, :]
-    order = np.argsort(rr, kind="stable")  # rr is sorted already: a no-op
-    rr, C = rr[order], C[order]
-    starts = np.r_[0, np.flatnonzero(np.diff(rr)) + 1]
-    R[rr[starts]] = np.add.reduceat(C, starts, axis=0)  # np.add.at is ten times slower
-    return R
+    return segment_loads(pair, segment_geometry(pp, Y, rule, ns_nodes), Y, lam_f, ns_nodes)
+
+
+def _perturbed(Ys: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Copies of the pairs' positions ``Ys`` (m, k, 3), one node coordinate moved by +-h each.
+
+    ``nodes`` (m, q): the nodes moved, per pair. Returns (2, q, 3, m, k, 3): [0] +h, [1] -h.
+    """
+    m, q = nodes.shape
+    Yall = np.broadcast_to(Ys, (2, q, 3) + Ys.shape).copy()
+    j, i, r = np.ix_(np.arange(q), np.arange(3), np.arange(m))
+    Yall[0, j, i, r, nodes.T[:, None, :], i] += FD_STEP
+    Yall[1, j, i, r, nodes.T[:, None, :], i] -= FD_STEP
+    return Yall
+
+
+def _moved_nodes(pp: SegmentPairs, k: int, ns_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair, the nodes that move its segments' points (M, 6) and the others (M, k - 6)."""
+    cut = np.hstack([pp.cols, ns_nodes + pp.m_vert])
+    mask = np.zeros((len(pp), k), dtype=bool)
+    mask[np.arange(len(pp))[:, None], cut] = True
+    others = np.nonzero(~mask)[1].reshape(len(pp), k - cut.shape[1])
+    return cut, others
 
 
 def segment_tangent_blocks(
@@ -165,6 +243,10 @@ def segment_tangent_blocks(
 ):
     """The consistent tangent blocks of a segment-integrated, frictionless pair.
 
+    The central differences in the coordinates of the nodes that do not move the segments'
+    points (P2: the slave facet's nodes off the piece, the master facet's off its triangle)
+    reuse the unperturbed pair's points: the same values as cutting every copy anew.
+
     Returns:
         (blk (M, k, 3, k, 3), rows (M, k, 3)): d(residual)/d(node positions) of every pair
         that carries pressure, and the global rows of its nodes.
@@ -173,21 +255,30 @@ def segment_tangent_blocks(
     ns_nodes = sl.nodes.shape[1]
     Y = np.concatenate([x_nodes[sl.nodes[pp.facet]], m.x[pp.m_nodes]], axis=1)  # (M, k, 3)
     M, k = Y.shape[:2]
-    # every +-h perturbation of every node coordinate of every pair, in one evaluation
-    steps = np.zeros((2, k, 3, k, 3))
-    idx = np.arange(k)
-    for i in range(3):
-        steps[0, idx, i, idx, i] = FD_STEP
-        steps[1, idx, i, idx, i] = -FD_STEP
+    cut, others = _moved_nodes(pp, k, ns_nodes)
     blk = np.empty((M, k, 3, k, 3))
-    chunk = max(1, CHUNK_ROWS // (6 * k))  # pairs per evaluation: bounds the memory
+    chunk = max(1, CHUNK_ROWS // (6 * cut.shape[1]))  # pairs per evaluation: bounds the memory
     for s in range(0, M, chunk):
         sub = pp.select(slice(s, s + chunk))
-        Ys = Y[s : s + chunk]
-        Yall = (Ys[None] + steps.reshape(-1, 1, k, 3)).reshape(-1, k, 3)  # (2*3k*m, k, 3)
-        lam_f = np.tile(lam[sub.facet], (6 * k, 1))
-        R = segment_pair_forces(pair, sub.tiled(6 * k), Yall, lam_f, rule, ns_nodes)
-        R = R.reshape(2, k, 3, len(Ys), k, 3)
-        blk[s : s + chunk] = np.moveaxis((R[0] - R[1]) / (2 * FD_STEP), (0, 1), (3, 4))
+        Ys, lam_s = Y[s : s + chunk], lam[sub.facet]
+        mc = len(Ys)
+        D = np.empty((mc, k, 3, k, 3))  # D[pair, moved node, coordinate] = d(R of the pair)
+        r = np.arange(mc)[None, None, :]
+        for nodes, same_cut in ((cut[s : s + chunk], False), (others[s : s + chunk], True)):
+            q = nodes.shape[1]
+            if q == 0:
+                continue
+            Yall = _perturbed(Ys, nodes).reshape(-1, k, 3)  # (2*3q*mc, k, 3)
+            src = np.tile(np.arange(mc), 6 * q)
+            if same_cut:
+                geo = segment_geometry(sub, Ys, rule, ns_nodes)
+                geo = None if geo is None else geo.take(src)
+            else:
+                geo = segment_geometry(sub.tiled(6 * q), Yall, rule, ns_nodes)
+            R = segment_loads(pair, geo, Yall, lam_s[src], ns_nodes).reshape(2, q, 3, mc, k, 3)
+            D[r, nodes.T[:, None, :], np.arange(3)[None, :, None]] = (R[0] - R[1]) / (
+                2 * FD_STEP
+            )
+        blk[s : s + chunk] = np.moveaxis(D, (1, 2), (3, 4))
     rows = np.concatenate([node_rows[sl.nodes[pp.facet]], m.rows[pp.m_nodes]], axis=1)
     return blk, rows

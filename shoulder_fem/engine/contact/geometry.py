@@ -107,14 +107,14 @@ def clip_polygons(poly: np.ndarray, cnt: np.ndarray, a: np.ndarray, b: np.ndarra
     Vectorised over M: ``poly`` (M, K, 2) with ``cnt`` valid vertices each; ``a``, ``b`` (M, 2).
 
     Returns:
-        (poly, cnt): the clipped polygons (M, K', 2), their valid vertices first, and their
-        numbers of valid vertices (M,).
+        (poly, cnt): the clipped polygons (M, K', 2), their valid vertices first (zeros after
+        them), and their numbers of valid vertices (M,).
     """
     M, K, _ = poly.shape
     idx = np.arange(K)
     nxt = (idx[None, :] + 1) % np.maximum(cnt[:, None], 1)
     cur = poly
-    nx = np.take_along_axis(poly, np.repeat(nxt[..., None], 2, axis=2), axis=1)
+    nx = poly[np.arange(M)[:, None], nxt]
     valid = idx[None, :] < cnt[:, None]
     e = b - a
 
@@ -133,11 +133,12 @@ def clip_polygons(poly: np.ndarray, cnt: np.ndarray, a: np.ndarray, b: np.ndarra
     out[:, 1::2] = cur + t[..., None] * (nx - cur)
     keep[:, 0::2] = valid & inc
     keep[:, 1::2] = valid & (inc != inn)
-    order = np.argsort(~keep, axis=1, kind="stable")
-    out = np.take_along_axis(out, np.repeat(order[..., None], 2, axis=2), axis=1)
     cnt = keep.sum(axis=1)
     kmax = max(int(cnt.max(initial=0)), 1)
-    return out[:, :kmax], cnt
+    clipped = np.zeros((M, kmax, 2))  # the kept vertices moved to the front, in order
+    rank = np.cumsum(keep, axis=1) - 1
+    clipped[np.nonzero(keep)[0], rank[keep]] = out[keep]
+    return clipped, cnt
 
 
 def barycentric_2d(p: np.ndarray, tri: np.ndarray) -> np.ndarray:

@@ -122,12 +122,13 @@ def segment_points(
     beta = barycentric_2d(pts, m2[rr])  # on the master's own vertex order
     pj = j[rr]
     nn = sl.nodes.shape[1]
-    N = np.zeros((len(pts), nn))
     cols = pieces[piece_id[pj]]  # (npts, 3)
-    np.add.at(N, (np.arange(len(pts))[:, None], cols), lam_s)
     N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[cols])
     if nn == 6:  # P2: the slave's own quadratic functions (consistent loads)
         N = p2_shape(N1)
+    else:
+        N = np.zeros((len(pts), nn))
+        np.add.at(N, (np.arange(len(pts))[:, None], cols), lam_s)
     return dict(facet=piece_facet[pj], piece=piece_id[pj], N=N, N1=N1, W=W, m_tri=t[rr], bary=beta)
 
 

@@ -184,8 +184,9 @@ def segment_loads(
     p, _ = normal_pressure(pair, g, lam)
     p = np.where(g >= -pair.search_depth, p, 0.0)
     f = (p * geo.W)[:, None] * n
-    coef = np.hstack([N, -Nm])
-    C = -coef[:, :, None] * f[:, None, :]
+    C = np.empty(Yr.shape)  # -(N, -Nm) x f, without the temporaries
+    np.multiply(N[:, :, None], -f[:, None, :], out=C[:, :ns_nodes])
+    np.multiply(Nm[:, :, None], f[:, None, :], out=C[:, ns_nodes:])
     starts = np.r_[0, np.flatnonzero(np.diff(rr)) + 1]  # rr is sorted (fan_rule)
     R[rr[starts]] = np.add.reduceat(C, starts, axis=0)  # np.add.at is ten times slower
     return R

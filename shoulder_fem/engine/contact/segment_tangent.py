@@ -277,9 +277,7 @@ def segment_tangent_blocks(
             else:
                 geo = segment_geometry(sub.tiled(6 * q), Yall, rule, ns_nodes)
             R = segment_loads(pair, geo, Yall, lam_s[src], ns_nodes).reshape(2, q, 3, mc, k, 3)
-            D[r, nodes.T[:, None, :], np.arange(3)[None, :, None]] = (R[0] - R[1]) / (
-                2 * FD_STEP
-            )
+            D[r, nodes.T[:, None, :], np.arange(3)[None, :, None]] = (R[0] - R[1]) / (2 * FD_STEP)
         blk[s : s + chunk] = np.moveaxis(D, (1, 2), (3, 4))
     rows = np.concatenate([node_rows[sl.nodes[pp.facet]], m.rows[pp.m_nodes]], axis=1)
     return blk, rows

@@ -223,9 +223,14 @@ class RigidSystem(SystemReports, ControlledSystem):
 
     @linesearch.setter
     def linesearch(self, kind: str) -> None:
-        set_from_options(self.snes, {"snes_linesearch_type": kind}, ksp=False)
-        self.snes.setLineSearchPreCheck(self._guard)
-        self._linesearch = kind
+        self.set_options({"snes_linesearch_type": kind})
+
+    def set_options(self, options: Mapping[str, object]) -> None:
+        """Change SNES options between solves (e.g. ``snes_max_it``, the line search type)."""
+        set_from_options(self.snes, options, ksp=False)
+        self.snes.setLineSearchPreCheck(self._guard)  # the line search keeps its pre-check
+        if "snes_linesearch_type" in options:
+            self._linesearch = str(options["snes_linesearch_type"])
 
     # ---- solves ------------------------------------------------------------------------------
     def solve(self, step: str = "") -> int:

@@ -157,6 +157,7 @@ class ReducedProblem:
         if fe is not None:
             self.P = layout.create_prolongation(bodies, self.phi, linear_ties)
         self.J = self._create_jacobian()
+        self._nonzeros = None  # J's nonzeros at the last factorization's analysis
         #: The travel control (:meth:`set_control`), or None.
         self.control: TravelControl | None = None
         self._control_work: tuple[PETSc.Vec, PETSc.Vec] | None = None
@@ -324,6 +325,13 @@ class ReducedProblem:
         """SNES Jacobian: J = Pᵀ K P + rigid tangent at ``x``; prescribed bodies' rows identity."""
         with timed(self.stats, "jacobian_s"):
             self._jacobian(x, J)
+        nonzeros = J.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
+        if snes is not None and nonzeros != self._nonzeros:
+            # A widened pattern (new contact entries, the control row) must be analysed
+            # afresh: measured under mpirun -n 2, MUMPS reused the old analysis and corrupted
+            # memory. Growth is rare; each one costs one symbolic analysis.
+            snes.getKSP().getPC().reset()
+        self._nonzeros = nonzeros
 
     def _jacobian(self, x: PETSc.Vec, J: PETSc.Mat) -> None:
         f_current = self.fe is not None and self._f_current(x)

@@ -17,7 +17,11 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from shoulder_fem.forms.kinematics import deformation_gradient
+from shoulder_fem.forms.kinematics import (
+    deformation_gradient,
+    isochoric_invariants,
+    right_cauchy_green,
+)
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["TRIAL_I1BAR_MAX", "SoftTissueCheck"]
@@ -49,9 +53,9 @@ class SoftTissueCheck:
         soft = np.isin(cell_tags.values, [m.id for m in S.SOFT]) & (cell_tags.indices < n_owned)
         self.cells = np.ascontiguousarray(cell_tags.indices[soft], dtype=np.int32)
         F = deformation_gradient(u)
-        J = ufl.det(F)
-        i1bar = ufl.tr(F.T * F) / abs(J) ** (2.0 / 3.0)
-        self.expr = dolfinx.fem.Expression(ufl.as_vector([J, i1bar]), POINTS)
+        # I1bar as the laws evaluate it; J signed (det F), so that an inverted element shows
+        i1bar, _, _ = isochoric_invariants(right_cauchy_green(F))
+        self.expr = dolfinx.fem.Expression(ufl.as_vector([ufl.det(F), i1bar]), POINTS)
 
     def values(self) -> tuple[np.ndarray, np.ndarray]:
         """(J, I1bar) at the owned soft-tissue cells' points, flattened (this rank's)."""

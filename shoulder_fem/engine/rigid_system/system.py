@@ -40,11 +40,13 @@ __all__ = ["RigidSystem", "create_snes", "run_snes"]
 
 
 def create_snes(
-    problem: ReducedProblem, prefix: str, options: dict | None
+    problem: ReducedProblem, guard: TrialGuard, prefix: str, options: dict | None
 ) -> tuple[PETSc.SNES, str]:
     """A SNES on ``problem``'s residual and Jacobian, options under ``prefix``; its line search.
 
     ``options`` (PETSc options) go over :func:`shoulder_fem.engine.solver.default_snes_options`.
+    Every Newton step passes ``guard`` (the line search's pre-check), which hands the residual
+    it evaluated at the accepted trial to the line search (it is the SNES function).
     """
     # Rotating a tied face by a finite angle makes the first Newton iterate of a nearly
     # incompressible body (linearised rotation of the free nodes) far worse than the start:
@@ -52,9 +54,10 @@ def create_snes(
     opts = default_snes_options() | {"snes_divergence_tolerance": -1.0} | dict(options or {})
     snes = PETSc.SNES().create(problem.comm)
     snes.setOptionsPrefix(prefix)
-    snes.setFunction(problem.residual, problem.r)
+    snes.setFunction(guard.residual, problem.r)
     snes.setJacobian(problem.jacobian, problem.J, problem.J)
     set_from_options(snes, opts)
+    snes.setLineSearchPreCheck(guard)
     snes.setConvergenceHistory(length=200, reset=True)
     return snes, str(opts["snes_linesearch_type"])
 
@@ -201,15 +204,13 @@ class RigidSystem(SystemReports, ControlledSystem):
             *parts, layout, ends, self._fe, self._step, self.stats, self.linear_ties
         )
         self.prefix = unique_prefix(name)
-        self.snes, self._linesearch = create_snes(self._problem, self.prefix, options)
         # every Newton step is shortened until its trial state is admissible with a finite
-        # residual (guard.py); the guard hands its residual to the line search
+        # residual (guard.py)
         problem = self._problem
         self._guard = TrialGuard(
             problem.update_state, problem.residual, admissible, self.stats, self.comm
         )
-        self.snes.setFunction(self._guard.residual, problem.r)
-        self.snes.setLineSearchPreCheck(self._guard)
+        self.snes, self._linesearch = create_snes(problem, self._guard, self.prefix, options)
 
     @property
     def dynamic(self) -> bool:

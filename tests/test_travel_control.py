@@ -146,6 +146,7 @@ def test_a_step_into_nan_is_shortened_inside_the_solve():
     reason, x, stats, its = _log_snes(guard=True)
     assert reason > 0 and np.allclose(x, 2.0, rtol=1e-12), (reason, x)
     assert stats.shortened_steps == 1 and stats.step_halvings == 1, vars(stats)
+    # Newton from 1.95 on ln x: 4 iterations measured (the guarded step counted); 8 is a bound
     assert its <= 8
 
 
@@ -164,5 +165,6 @@ def test_a_rigid_system_names_a_solve_that_cannot_be_rescued():
     with pytest.raises(ConvergenceError, match="at never"):
         system.solve("never")
     assert system.stats.shortened_steps >= 1
+    # TrialGuard's max_halvings = 20 per shortened step: nothing admissible, all of them used
     assert system.stats.step_halvings == 20 * system.stats.shortened_steps
     system.destroy()

@@ -7,7 +7,16 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["constant", "owned_flags"]
+__all__ = ["JIT_PARAMS", "constant", "owned_flags"]
+
+#: C compiler flags of the hot forms' kernels (``jit_params`` of ``dolfinx.fem.form``).
+#: ``-fno-math-errno`` lets the compiler inline and vectorise ``sqrt``, ``exp`` and ``log``
+#: (they no longer set ``errno``; their IEEE results, NaN and inf included, are unchanged):
+#: measured on the shoulder's soft-tissue tangent at ``paper``, 0.18 -> 0.126 s per matrix
+#: and 0.011 -> 0.005 s per residual, with the same assembled values as dolfinx's default
+#: ``-O2 -g0``. ``-march=native`` (0.096 s) is left out: it changes round-off (contraction
+#: into FMA) and a form cache shared by the nodes of a cluster must run on all of them.
+JIT_PARAMS = {"cffi_extra_compile_args": ["-O2", "-g0", "-fno-math-errno"]}
 
 
 def constant(mesh: dolfinx.mesh.Mesh, value) -> dolfinx.fem.Constant:

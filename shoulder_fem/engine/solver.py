@@ -27,6 +27,8 @@ import numpy as np
 import ufl
 from petsc4py import PETSc
 
+from shoulder_fem.engine.fem import JIT_PARAMS
+
 logger = logging.getLogger(__name__)
 
 _prefix_counter = itertools.count()
@@ -212,8 +214,8 @@ class NonlinearSolver:
         if jacobian is None:
             jacobian = ufl.derivative(residual, u, ufl.TrialFunction(u.function_space))
         fco = form_compiler_params or {}
-        self._F = dolfinx.fem.form(residual, form_compiler_params=fco)
-        self._J = dolfinx.fem.form(jacobian, form_compiler_params=fco)
+        self._F = dolfinx.fem.form(residual, form_compiler_params=fco, jit_params=JIT_PARAMS)
+        self._J = dolfinx.fem.form(jacobian, form_compiler_params=fco, jit_params=JIT_PARAMS)
         self._b = fem_petsc.create_vector(self._F)
         self._A = fem_petsc.create_matrix(self._J)
         self._x = self._b.duplicate()

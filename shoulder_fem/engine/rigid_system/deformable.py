@@ -16,6 +16,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from shoulder_fem.engine.fem import JIT_PARAMS
 from shoulder_fem.engine.rigid_system.bodies import RigidBody
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout
 
@@ -50,8 +51,8 @@ class DeformablePart:
         fco = form_compiler_params or {}
         if jacobian is None:
             jacobian = ufl.derivative(residual, u, ufl.TrialFunction(u.function_space))
-        self.F_form = dolfinx.fem.form(residual, form_compiler_params=fco)
-        self.J_form = dolfinx.fem.form(jacobian, form_compiler_params=fco)
+        self.F_form = dolfinx.fem.form(residual, form_compiler_params=fco, jit_params=JIT_PARAMS)
+        self.J_form = dolfinx.fem.form(jacobian, form_compiler_params=fco, jit_params=JIT_PARAMS)
         #: The assembled residual (N) and tangent (N/m), without conditions.
         self.F = fem_petsc.create_vector(self.F_form)
         self.K = fem_petsc.create_matrix(self.J_form)

@@ -17,6 +17,7 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
+from shoulder_fem.engine.fem import JIT_PARAMS
 from shoulder_fem.forms.kinematics import (
     deformation_gradient,
     isochoric_invariants,
@@ -55,7 +56,9 @@ class SoftTissueCheck:
         F = deformation_gradient(u)
         # I1bar as the laws evaluate it; J signed (det F), so that an inverted element shows
         i1bar, _, _ = isochoric_invariants(right_cauchy_green(F))
-        self.expr = dolfinx.fem.Expression(ufl.as_vector([ufl.det(F), i1bar]), POINTS)
+        self.expr = dolfinx.fem.Expression(
+            ufl.as_vector([ufl.det(F), i1bar]), POINTS, jit_params=JIT_PARAMS
+        )
 
     def values(self) -> tuple[np.ndarray, np.ndarray]:
         """(J, I1bar) at the owned soft-tissue cells' points, flattened (this rank's)."""

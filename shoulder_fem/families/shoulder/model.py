@@ -48,6 +48,7 @@ class ShoulderParameters:
 
     final_angle: float
     angle_step: float
+    max_angle_step: float
     output_angle: float
     max_cutbacks: int
     contact_penalty: float

@@ -5,10 +5,12 @@ The scapular origin of the subscapularis is a rigid plate that travels along
 humerus's rigid rotation, or of the best fit of its nodes in the coupled method) is the progress
 variable. Each step is one Newton solve in which the plate's travel is an unknown and
 "twist = target" its equation (:class:`~shoulder_fem.engine.rigid_system.control.TravelControl`):
-targets are hit to ``snes_atol / ANGLE_SCALE`` rad. A tangent predictor (``dx/dθ`` by one
-back-substitution with the last factorization) starts each step; the increments adapt to the
-Newton iterations (:data:`TARGET_ITERATIONS`) and never step over an output angle, so the
-outputs every ``output_angle`` are exact (:func:`run_steps`).
+targets are hit to ``snes_atol / ANGLE_SCALE`` rad. A second-order predictor starts each step:
+the tangent ``dx/dθ`` (one back-substitution with the last factorization) and its change since
+the step before (:meth:`AngleStepper.predictor`). The increments adapt to the Newton iterations
+(:data:`TARGET_ITERATIONS`); the way to an output angle is split into equal steps, so the
+outputs every ``output_angle`` are exact and no sliver of a step is left before them
+(:func:`run_steps`).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ __all__ = [
     "FALLBACK_LINESEARCH",
     "FALLBACK_MAX_IT",
     "SNES_OPTIONS",
+    "STRETCH",
     "TARGET_ITERATIONS",
     "AngleOutputs",
     "AngleStepper",
@@ -91,6 +94,9 @@ ANGLE_SCALE = 1e5
 #: Newton iterations per step that the adaptive increments aim at: the next increment is the
 #: last one times sqrt(TARGET_ITERATIONS / iterations), within [1/2, 2].
 TARGET_ITERATIONS = 5
+#: A step to an output angle may be this much longer than the increment, rather than leave a
+#: short step before the output (:meth:`AngleStepper.reach`).
+STRETCH = 1.25
 
 
 @dataclass
@@ -134,11 +140,14 @@ class AngleStepper:
         self.system, self.contact, self.actuator = system, contact, actuator
         self.direction, self.measure, self.label = direction, measure, label
         self.final = params.final_angle
-        self.increment = params.angle_step
+        self.increment = min(params.angle_step, params.max_angle_step)
+        self.max_step = params.max_angle_step
         self.max_cut = int(params.max_cutbacks)
         self.log = StepLog()
         self.theta = 0.0
         self.tangent: PETSc.Vec | None = None
+        #: The tangent of the converged state before, and the step from there (rad).
+        self.previous: tuple[PETSc.Vec, float] | None = None
 
     def start(self) -> None:
         """Solve the unloaded state (the plate at rest), then control the plate by the angle."""
@@ -163,7 +172,9 @@ class AngleStepper:
         """
         cuts = fails = 0
         while goal - self.theta > 1e-12:
-            step = min(self.increment, goal - self.theta)
+            left = goal - self.theta
+            longest = min(STRETCH * self.increment, self.max_step)
+            step = left / math.ceil(left / longest - 1e-9)
             clipped = step < self.increment
             err, its = self.try_step(self.theta + step)
             if err is not None:
@@ -184,8 +195,11 @@ class AngleStepper:
                 continue
             cuts = 0
             factor = float(np.clip(math.sqrt(TARGET_ITERATIONS / max(its, 1)), 0.5, 2.0))
-            if not (clipped and factor > 1.0):  # a step shortened to hit an output says nothing
+            if clipped and factor > 1.0:  # a step shortened to land on an output
+                self.increment = max(self.increment, step * factor)
+            else:
                 self.increment = step * factor
+            self.increment = min(self.increment, self.max_step)
         return None
 
     def _stalled(self, goal: float, err: ConvergenceError, cuts: int, fails: int) -> str:
@@ -212,7 +226,9 @@ class AngleStepper:
 
         def predict(snap=snap, step=step):
             if self.tangent is not None:
-                system.predict(self.tangent, step)
+                direction = self.predictor(step)
+                system.predict(direction, step)
+                direction.destroy()
 
         predict()
         system.control.target = target
@@ -225,8 +241,9 @@ class AngleStepper:
             self.log.failed_steps += 1
             return err, 0
         self.contact.commit()
-        if self.tangent is not None:
-            self.tangent.destroy()
+        if self.previous is not None:
+            self.previous[0].destroy()
+        self.previous = None if self.tangent is None else (self.tangent, step)
         self.tangent = system.control_tangent()
         self.theta = target
         measured = self.measure(False).value
@@ -243,11 +260,31 @@ class AngleStepper:
         )
         return None, its
 
+    def predictor(self, step: float) -> PETSc.Vec:
+        """The predictor's direction ``v`` for a step of ``step`` rad: ``x(θ + step) ≈ x + step v``.
+
+        Second order: ``v = t + step / (2 h) (t - t₋)``, the tangent ``t`` here and ``t₋`` at
+        the converged state a step ``h`` before (the change of the tangent over the last step
+        estimates d²x/dθ²). Its rotation entries are spatial angular rates, comparable between
+        the two states. Measured at ``medium``, decoupled 0-60 deg: the first residual of a
+        3-deg step falls from about 900 N (the humerus's force rows) to 5-60 N, and part 1
+        takes 64 Newton iterations instead of 113. The first step (no state before) uses ``t``.
+        A new Vec.
+        """
+        v = self.tangent.copy()
+        if self.previous is not None:
+            before, h = self.previous
+            c = step / (2.0 * h)
+            v.scale(1.0 + c)
+            v.axpy(-c, before)
+        return v
+
     def destroy(self) -> None:
-        """Free the tangent."""
-        if self.tangent is not None:
-            self.tangent.destroy()
-            self.tangent = None
+        """Free the tangents."""
+        for vec in (self.tangent, None if self.previous is None else self.previous[0]):
+            if vec is not None:
+                vec.destroy()
+        self.tangent = self.previous = None
 
 
 def drive_rotation(

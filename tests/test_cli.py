@@ -166,3 +166,57 @@ def test_sigterm_removes_the_unfinished_output(tmp_path: Path) -> None:
     assert proc.returncode == 143, err
     assert f"stopped by SIGTERM: the unfinished output {out} was removed" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_serial_bench_runs_each_method_in_its_own_process(tmp_path: Path) -> None:
+    """``bench`` (serial) runs each method as ``shoulder-fem run`` in a process of its own, so
+    each peak memory is the method's: the decoupled run starts from a fresh process's memory
+    (within 10 % of the coupled run's start), not from what the coupled run left; the report's
+    memory ratio and speed-up are the two summaries' own numbers."""
+    import json
+
+    out = tmp_path / "bench"
+    done = subprocess.run(
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", "bench", "spinning-bar"]
+        + ["--level", "coarse", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, OMP_NUM_THREADS="1"),
+    )
+    assert done.returncode == 0, done.stderr
+    summaries = {
+        m: json.loads((out / m / "summary.json").read_text()) for m in ("coupled", "decoupled")
+    }
+    res = {m: s["resources"] for m, s in summaries.items()}
+    assert all(s["status"] == "ok" for s in summaries.values())
+    assert res["decoupled"]["start_rss_mb"] == pytest.approx(
+        res["coupled"]["start_rss_mb"], rel=0.1
+    )
+    report = json.loads((out / "report.json").read_text())
+    peak = {m: r["peak_rss_mb"] for m, r in res.items()}
+    assert report["memory_ratio"] == pytest.approx(peak["decoupled"] / peak["coupled"], rel=1e-9)
+    cpu = {m: r["cpu_s"] for m, r in res.items()}
+    assert report["speedup_cpu"] == pytest.approx(cpu["coupled"] / cpu["decoupled"], rel=1e-9)
+
+
+def test_sigterm_during_bench_stops_its_run_too(tmp_path: Path) -> None:
+    """``kill`` of a serial ``bench`` while its first method runs in a child process: the child
+    is stopped as well (no process left running, exit 143, nothing left in the folder)."""
+    out = tmp_path / "bench"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", "bench", "shoulder-internal-rotation"]
+        + ["--level", "coarse", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120.0
+    while not list(tmp_path.glob("bench.partial-*/coupled.partial-*")):  # the child writes
+        assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert list(tmp_path.iterdir()) == []
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=True)
+    assert str(out / "coupled") not in ps.stdout, ps.stdout

@@ -319,6 +319,26 @@ class TwoBlocks:
         )
 
 
+def test_segments_cut_in_chunks_are_the_same_points(monkeypatch):
+    """The segment cut works through its candidate pairs a chunk at a time (to bound its work
+    arrays): cut 7 pairs at a time, the P2 patch test's solve gives the same pressures, gaps and
+    force as in one pass, to the last bit (the pairs are independent)."""
+    from shoulder_fem.engine.contact import points
+
+    results = []
+    for chunk in (points.CUT_CHUNK, 7):
+        monkeypatch.setattr(points, "CUT_CHUNK", chunk)
+        tb = TwoBlocks(degree=2)
+        tb.top_z.value = -1e-3
+        tb.solver.solve()
+        st = tb.contact._state[0]
+        pairs = np.unique(np.stack([st["facet"], st["piece"], st["m_tri"]], axis=1), axis=0)
+        assert len(pairs) > 3 * 7  # cut pairs with points: several chunks of 7
+        results.append((st["p"].copy(), st["g"].copy(), tb.u.x.array.copy()))
+    for a, b in zip(results[0], results[1], strict=True):
+        assert np.array_equal(a, b)
+
+
 @pytest.mark.mpi
 @pytest.mark.parametrize("degree", [1, 2])
 def test_patch_test_non_matching_meshes_and_action_reaction(degree):

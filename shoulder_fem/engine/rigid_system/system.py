@@ -254,6 +254,9 @@ class RigidSystem(SystemReports, ControlledSystem):
 
     def _run_snes(self, step: str) -> int:
         """Run the SNES from the current state (or predictor); leave the state at the solution."""
+        if self._problem.compact():
+            J = self._problem.J
+            self.snes.setJacobian(self._problem.jacobian, J, J)
         x = self._problem.x_from_state()
         its = run_snes(self.snes, x, self.stats, step, self.prefix)
         self._problem.update_state(x)

@@ -549,6 +549,7 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
     recorder.set_probe("shortened_newton_steps", job.system.stats.shortened_steps, "1")
     recorder.set_probe("newton_step_halvings", job.system.stats.step_halvings, "1")
+    recorder.set_probe("jacobian_pattern_rebuilds", job.system.stats.pattern_rebuilds, "1")
     recorder.add_solver_counts(job.system.stats, StepperStats(log.steps, log.failed_steps))
     record_time_split(recorder, job.label, job.system, job.contact)
     if stop is not None:

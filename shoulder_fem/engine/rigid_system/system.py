@@ -211,6 +211,10 @@ class RigidSystem(SystemReports, ControlledSystem):
             problem.update_state, problem.residual, admissible, self.stats, self.comm
         )
         self.snes, self._linesearch = create_snes(problem, self._guard, self.prefix, options)
+        #: Whether every Newton iteration evaluates J (not a lagged, chord Jacobian): only then
+        #: may J be rebuilt between solves (:meth:`ReducedProblem.compact`), since a lagged
+        #: factorization would meet the new matrix unfilled.
+        self._fresh_jacobians = int((options or {}).get("snes_lag_jacobian", 1)) == 1
 
     @property
     def dynamic(self) -> bool:
@@ -232,6 +236,8 @@ class RigidSystem(SystemReports, ControlledSystem):
         self.snes.setLineSearchPreCheck(self._guard)  # the line search keeps its pre-check
         if "snes_linesearch_type" in options:
             self._linesearch = str(options["snes_linesearch_type"])
+        if "snes_lag_jacobian" in options:
+            self._fresh_jacobians = int(options["snes_lag_jacobian"]) == 1
 
     # ---- solves ------------------------------------------------------------------------------
     def solve(self, step: str = "") -> int:
@@ -254,7 +260,7 @@ class RigidSystem(SystemReports, ControlledSystem):
 
     def _run_snes(self, step: str) -> int:
         """Run the SNES from the current state (or predictor); leave the state at the solution."""
-        if self._problem.compact():
+        if self._fresh_jacobians and self._problem.compact():
             J = self._problem.J
             self.snes.setJacobian(self._problem.jacobian, J, J)
         x = self._problem.x_from_state()

@@ -399,35 +399,36 @@ class ReducedProblem:
             self.contact.add(J, fe, self.P, self.stats)
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------
-    def compact(self) -> bool:
-        """Drop the entries of contacts gone from J's pattern, if they are many (collective).
+    def compact(self) -> None:
+        """Rebuild J without the entries of contacts gone (collective; between solves).
 
         J's pattern only grows within a solve (every new contact entry is merged); over a long
         run its stale entries cost the LU fill and memory (measured at ``paper``, part 1 over
         0-60 deg: J from 0.99M to 1.33M nonzeros, MUMPS from 50 to 98 MB, while the FE and the
-        current contact needed 1.10M). Between solves, when more than :data:`STALE_FRACTION`
-        of J's entries are neither the FE product's nor the current contact product's, J is
+        current contact needed 1.10M). When more than :data:`STALE_FRACTION` of J's entries
+        are neither the FE product's nor the current contact product's (:meth:`stale`), J is
         rebuilt on those two patterns (the control row and new contact entries are merged again
         by the next Jacobian, whose factorization is then analysed afresh).
 
-        Returns:
-            Whether J is a new matrix (the SNES must be given it).
+        The caller frees the old factorization first and gives the SNES the new J
+        (:meth:`RigidSystem._run_snes`): the old J and its factors are not held beside the new.
         """
         from shoulder_fem.engine.contact import add_to_pattern
 
-        if self.fe is None or self.contact.C is None:
-            return False
-        info = PETSc.Mat.InfoType.GLOBAL_SUM
-        needed = self.C.getInfo(info)["nz_used"] + self.contact.C.getInfo(info)["nz_used"]
-        if self.J.getInfo(info)["nz_used"] <= (1.0 + STALE_FRACTION) * needed:
-            return False
         self.J.destroy()
         self.J = self._pattern()
         self.stats.pattern_rebuilds += 1
         self.contact.keys = add_to_pattern(self.J, self.contact.C, np.zeros(0, np.int64), self.comm)
         self.J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         self._nonzeros = None
-        return True
+
+    def stale(self) -> bool:
+        """Whether more than :data:`STALE_FRACTION` of J's entries are of contacts gone."""
+        if self.fe is None or self.contact.C is None:
+            return False
+        info = PETSc.Mat.InfoType.GLOBAL_SUM
+        needed = self.C.getInfo(info)["nz_used"] + self.contact.C.getInfo(info)["nz_used"]
+        return self.J.getInfo(info)["nz_used"] > (1.0 + STALE_FRACTION) * needed
 
     def _create_jacobian(self) -> PETSc.Mat:
         if self.fe is not None:

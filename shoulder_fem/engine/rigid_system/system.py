@@ -260,7 +260,9 @@ class RigidSystem(SystemReports, ControlledSystem):
 
     def _run_snes(self, step: str) -> int:
         """Run the SNES from the current state (or predictor); leave the state at the solution."""
-        if self._fresh_jacobians and self._problem.compact():
+        if self._fresh_jacobians and self._problem.stale():
+            self.snes.getKSP().reset()  # frees the factorization and its hold on the old J
+            self._problem.compact()
             J = self._problem.J
             self.snes.setJacobian(self._problem.jacobian, J, J)
         x = self._problem.x_from_state()

@@ -145,25 +145,35 @@ def test_form_compilation_is_quiet(tmp_path: Path, verbosity: str) -> None:
         assert "INFO:root" not in out.stderr, out.stderr
 
 
-def test_sigterm_removes_the_unfinished_output(tmp_path: Path) -> None:
-    """``kill`` during a run: the command exits with 143 and says so, and no staging folder
-    (``OUT.partial-*``) or half-written ``OUT`` is left behind."""
-    out = tmp_path / "dec"
+def _terminated_while_writing(
+    args: list[str], folder: Path, pattern: str, settle: float = 0.0
+) -> tuple[int, str]:
+    """Start ``shoulder-fem -q ARGS``, SIGTERM it once ``folder/pattern`` exists (and ``settle``
+    seconds more); its exit status and stderr."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "shoulder_fem.cli", "-q", "run", "shoulder-internal-rotation"]
-        + ["--method", "decoupled", "--out", str(out)],
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", *args],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
     )
     deadline = time.monotonic() + 120.0
-    while not list(tmp_path.glob("dec.partial-*")):  # the run has started writing
+    while not list(folder.glob(pattern)):
         assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
         time.sleep(0.1)
-    time.sleep(1.0)  # well before the end (the run takes about a minute)
+    time.sleep(settle)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143, err
+    return proc.returncode, err
+
+
+def test_sigterm_removes_the_unfinished_output(tmp_path: Path) -> None:
+    """``kill`` during a run: the command exits with 143 and says so, and no staging folder
+    (``OUT.partial-*``) or half-written ``OUT`` is left behind."""
+    out = tmp_path / "dec"
+    args = ["run", "shoulder-internal-rotation", "--method", "decoupled", "--out", str(out)]
+    # a second after it started writing: well before the end (the run takes about a minute)
+    status, err = _terminated_while_writing(args, tmp_path, "dec.partial-*", settle=1.0)
+    assert status == 143, err
     assert f"stopped by SIGTERM: the unfinished output {out} was removed" in err
     assert list(tmp_path.iterdir()) == []
 
@@ -203,20 +213,10 @@ def test_sigterm_during_bench_stops_its_run_too(tmp_path: Path) -> None:
     """``kill`` of a serial ``bench`` while its first method runs in a child process: the child
     is stopped as well (no process left running, exit 143, nothing left in the folder)."""
     out = tmp_path / "bench"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "shoulder_fem.cli", "-q", "bench", "shoulder-internal-rotation"]
-        + ["--level", "coarse", "--out", str(out)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 120.0
-    while not list(tmp_path.glob("bench.partial-*/coupled.partial-*")):  # the child writes
-        assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
-        time.sleep(0.1)
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143, err
+    args = ["bench", "shoulder-internal-rotation", "--level", "coarse", "--out", str(out)]
+    # as soon as the child run writes its own staging folder
+    status, err = _terminated_while_writing(args, tmp_path, "bench.partial-*/coupled.partial-*")
+    assert status == 143, err
     assert list(tmp_path.iterdir()) == []
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=True)
     assert str(out / "coupled") not in ps.stdout, ps.stdout

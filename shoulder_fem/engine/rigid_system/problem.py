@@ -403,9 +403,9 @@ class ReducedProblem:
         """Rebuild J without the entries of contacts gone (collective; between solves).
 
         J's pattern only grows within a solve (every new contact entry is merged); over a long
-        run its stale entries cost the LU fill and memory (measured at ``paper``, part 1 over
-        0-60 deg: J from 0.99M to 1.33M nonzeros, MUMPS from 50 to 98 MB, while the FE and the
-        current contact needed 1.10M). When more than :data:`STALE_FRACTION` of J's entries
+        run its stale entries cost the LU fill and memory (measured at ``paper``, part 1: J from
+        0.99M nonzeros at 0 deg to 1.33M at 50 deg, MUMPS from 50 to 98 MB; rebuilt, 1.09M and
+        64 MB at 50 deg). When more than :data:`STALE_FRACTION` of J's entries
         are neither the FE product's nor the current contact product's (:meth:`stale`), J is
         rebuilt on those two patterns (the control row and new contact entries are merged again
         by the next Jacobian, whose factorization is then analysed afresh).

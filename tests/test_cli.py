@@ -92,6 +92,15 @@ def test_scenes_lists_spinning_bar(capsys):
     assert "spinning-bar" in capsys.readouterr().out
 
 
+def test_version_is_the_installed_distribution(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"shoulder-fem {version('shoulder-fem')}"
+
+
 def test_help_is_instant():
     """--help must not import dolfinx (heavy imports live inside the commands)."""
     code = "import sys; from shoulder_fem.cli import build_parser; print('dolfinx' in sys.modules)"

@@ -160,6 +160,27 @@ def test_a_forced_large_step_is_shortened_inside_the_solve_not_cut_back(comm_tmp
     assert x[-1] == pytest.approx(7.0) and y[-1] == pytest.approx(7.0, abs=1e-6), y
 
 
+def test_a_cut_back_step_is_an_info_line_with_the_reason_at_debug(comm_tmp, caplog):
+    """Part 1 at coarse, one forced 8-deg step (measured: its solve ends in a NaN residual even
+    with the guard; the halved steps converge): the log says "cut back" at info level, the
+    PETSc reason only at debug level, and no warning."""
+    import logging
+
+    scene = load_scene("shoulder-internal-rotation").with_overrides(
+        ["final_angle=8deg", "angle_step=8deg", "max_angle_step=8deg", "output_angle=8deg"]
+    )
+    name = "shoulder_fem.families.shoulder.stepping"
+    with caplog.at_level(logging.DEBUG, logger=name):
+        result = api.run(scene, "decoupled", "coarse", comm_tmp / "cut")
+    assert result.status == "ok" and result.probes["failed_steps"] >= 1
+    mine = [r for r in caplog.records if r.name == name]
+    cut = [r for r in mine if "cut back (1/6)" in r.getMessage()]
+    assert cut and all(r.levelno == logging.INFO for r in cut), [r.getMessage() for r in mine]
+    reasons = [r for r in mine if "DIVERGED" in r.getMessage()]
+    assert reasons and all(r.levelno == logging.DEBUG for r in reasons)
+    assert not [r for r in mine if r.levelno >= logging.WARNING]
+
+
 def test_decoupled_matches_coupled_within_the_coarse_tolerances(study):
     m = study["report"]
     tol = COARSE_TOLERANCES

@@ -17,6 +17,7 @@ import signal
 import sys
 from pathlib import Path
 
+from shoulder_fem import __version__
 from shoulder_fem.cli.args import add_run_arguments
 from shoulder_fem.cli.mesh import add_mesh_parser
 
@@ -117,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--log-all-ranks", action="store_true", help="log from every MPI rank, prefixed 'CPU n:'"
     )
+    parser.add_argument("--version", action="version", version=f"shoulder-fem {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     sub.add_parser("scenes", help="list the built-in scenes")

@@ -426,9 +426,8 @@ def _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, d
                 err.prefix,
             ) from err
         stats.cutbacks += 1
-        logger.warning(
-            "step %s failed (%s): cutting back to dt=%.3g", err.step, err.reason, (t1 - t0) / 2
-        )
+        logger.info("step %s cut back to dt=%.3g", err.step, (t1 - t0) / 2)
+        logger.debug("step %s: %s", err.step, err.reason)
     tm = 0.5 * (t0 + t1)
     _advance_with_cutback(t0, tm, advance, save, restore, max_cutbacks, stats, depth + 1)
     _advance_with_cutback(tm, t1, advance, save, restore, max_cutbacks, stats, depth + 1)

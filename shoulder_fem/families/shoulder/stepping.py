@@ -181,15 +181,15 @@ class AngleStepper:
                 cuts += 1
                 fails += 1
                 self.increment = 0.5 * step
-                logger.warning(
-                    "%s: step %.3f -> %.3f deg failed (%s); cutback %d/%d",
+                logger.info(
+                    "%s: step %.3f -> %.3f deg cut back (%d/%d)",
                     self.label,
                     math.degrees(self.theta),
                     math.degrees(self.theta + step),
-                    err.reason,
                     cuts,
                     self.max_cut,
                 )
+                logger.debug("%s: the step's solve: %s", self.label, err.reason)
                 if cuts > self.max_cut or fails > 2 * self.max_cut:
                     return self._stalled(goal, err, cuts, fails)
                 continue
@@ -350,9 +350,8 @@ def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: Ste
             why in err.reason for why in ("MAX_IT", "DTOL")
         ):
             raise  # a failed factorization: the step is too long
-        logger.info(
-            "%s: %s; retried with the %s line search", step, err.reason, FALLBACK_LINESEARCH
-        )
+        logger.info("%s: retried with the %s line search", step, FALLBACK_LINESEARCH)
+        logger.debug("%s: the full-step solve: %s", step, err.reason)
         log.fallbacks += 1
         log.newton_iterations += err.iterations
         system.restore(snap)

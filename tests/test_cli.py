@@ -229,3 +229,71 @@ def test_sigterm_during_bench_stops_its_run_too(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=True)
     assert str(out / "coupled") not in ps.stdout, ps.stdout
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("shoulder-fem: error:"), err
+    return err
+
+
+def test_compare_refuses_what_is_not_a_run_in_one_line(tmp_path, capsys):
+    """``compare`` of a missing folder, a folder without summary.json, a summary that is not
+    JSON, and a JSON file that is not a run's summary: one line naming the folder and what is
+    wrong, exit status 2, no output folder."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    bad_json, not_a_run = tmp_path / "bad-json", tmp_path / "not-a-run"
+    bad_json.mkdir()
+    (bad_json / "summary.json").write_text('{"scene": "spinning-bar", ')
+    not_a_run.mkdir()
+    (not_a_run / "summary.json").write_text('{"scene": "spinning-bar"}')
+    cases = [
+        (tmp_path / "missing", "no summary.json at"),
+        (run_dir, "no summary.json at"),
+        (bad_json, "summary.json is not valid JSON"),
+        (not_a_run, "is not a run's summary (missing: method, status, series"),
+    ]
+    for folder, expected in cases:
+        out = tmp_path / "cmp"
+        assert main(["-q", "compare", str(folder), str(folder), "--out", str(out)]) == EXIT_INPUT
+        err = _one_line_error(capsys)
+        assert expected in err and str(folder) in err, err
+        assert not out.exists()
+
+
+def test_compare_of_other_scenes_and_of_a_failed_run(tmp_path, capsys):
+    """Real runs: spinning-bar against tied-block is refused (exit 2, both scenes named);
+    a spinning-bar run whose summary says it failed (the same run's summary with its status
+    set to ``failed``: what a diverged run writes) is compared, the comparison is kept, and
+    the command says so in one line with exit status 3."""
+    import json
+
+    from shoulder_fem.cli import EXIT_SOLVER
+
+    base = ["--level", "coarse", "--set", "end_time=0.01"]
+    bar = tmp_path / "bar"
+    assert main(["-q", "run", "spinning-bar", "--method", "coupled", *base, "--out", str(bar)]) == 0
+    block = tmp_path / "block"
+    assert (
+        main(
+            ["-q", "run", "tied-block", "--method", "coupled", "--level", "coarse"]
+            + ["--out", str(block)]
+        )
+        == 0
+    )
+    capsys.readouterr()
+    out = tmp_path / "cmp"
+    assert main(["-q", "compare", str(bar), str(block), "--out", str(out)]) == EXIT_INPUT
+    err = _one_line_error(capsys)
+    assert "runs of different scenes" in err and "'spinning-bar'" in err and "'tied-block'" in err
+    assert not out.exists()
+    failed = tmp_path / "failed"
+    failed.mkdir()
+    summary = json.loads((bar / "summary.json").read_text())
+    summary["status"], summary["message"] = "failed", "DIVERGED_LINE_SEARCH at t = 0.01 s"
+    (failed / "summary.json").write_text(json.dumps(summary))
+    assert main(["-q", "compare", str(bar), str(failed), "--out", str(out)]) == EXIT_SOLVER
+    err = _one_line_error(capsys)
+    assert f"{failed} is a run with status 'failed'" in err, err
+    assert (out / "comparison.json").is_file()

@@ -16,6 +16,10 @@ class SolverFailure(RuntimeError):
     """A run stopped on a solver failure (exit status 3)."""
 
 
+class InputFailure(ValueError):
+    """An input that cannot be used, e.g. a results folder to compare (exit status 2)."""
+
+
 def error(message: str) -> None:
     """Print ``shoulder-fem: error: <message>`` on rank 0's stderr."""
     from mpi4py import MPI
@@ -93,15 +97,54 @@ def cmd_compare(args) -> int:
     from mpi4py import MPI
 
     from shoulder_fem.io.output import OutputDir
-    from shoulder_fem.io.results import load_summary
 
     comm = MPI.COMM_WORLD
-    ref, other = load_summary(args.ref), load_summary(args.other)
+    ref, other = _compared_run(args.ref, "reference"), _compared_run(args.other, "other")
+    if ref["scene"] != other["scene"]:
+        raise InputFailure(
+            f"compare: runs of different scenes: {args.ref} is '{ref['scene']}', "
+            f"{args.other} is '{other['scene']}'"
+        )
     with OutputDir(args.out, comm) as out:
         report = write_comparison(ref, other, out.path, comm)
     say(_comparison_lines(report))
     say(f"comparison: {args.out}")
+    for folder, summary in ((args.ref, ref), (args.other, other)):
+        if summary.get("status") != "ok":  # compared all the same, and said
+            raise SolverFailure(
+                f"compare: {folder} is a run with status '{summary.get('status')}' "
+                f"({summary.get('message')}); the comparison covers what it reached"
+            )
     return 0
+
+
+#: What a run's summary.json must hold to be compared.
+_SUMMARY_KEYS = ("scene", "method", "status", "series", "probes", "resources")
+
+
+def _compared_run(folder: Path, role: str) -> dict:
+    """The summary of a run folder to compare.
+
+    Raises:
+        InputFailure: No such folder, no ``summary.json`` in it, or one that is not a run's
+            summary (not JSON, keys missing).
+    """
+    import json
+
+    from shoulder_fem.io.results import load_summary
+
+    try:
+        summary = load_summary(folder)
+    except FileNotFoundError as err:
+        raise InputFailure(f"compare: {role} run: {err}") from err
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputFailure(f"compare: {folder}/summary.json is not valid JSON ({err})") from err
+    missing = [k for k in _SUMMARY_KEYS if not isinstance(summary, dict) or k not in summary]
+    if missing:
+        raise InputFailure(
+            f"compare: {folder}/summary.json is not a run's summary (missing: {', '.join(missing)})"
+        )
+    return summary
 
 
 def write_comparison(ref: dict, other: dict, folder: Path, comm) -> dict:

@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
             "bench": commands.cmd_bench,
             "mesh": cmd_mesh,
         }[args.command](args)
-    except (SceneError, OutputError) as err:
+    except (SceneError, OutputError, commands.InputFailure) as err:
         commands.error(str(err))
         return EXIT_INPUT
     except commands.SolverFailure as err:

@@ -124,6 +124,17 @@ class Parameter:
                 )
         return replace(self, value=value)
 
+    def described(self) -> tuple[str, str]:
+        """(value, bounds) as a reader sets them: in the scene file's unit, e.g. ``60 deg``."""
+        if self.choices:
+            return str(self.value), "one of " + ", ".join(self.choices)
+        if isinstance(self.value, bool) or not isinstance(self.value, float):
+            return str(self.value).lower(), _bounds_text(self.bounds, 1.0, "")
+        unit = self.file_unit or self.unit
+        unit = "" if unit == "1" else unit  # dimensionless: the number alone
+        scale = UNITS[self.file_unit][1] if self.file_unit in UNITS else 1.0
+        return f"{self.value / scale:g} {unit}".strip(), _bounds_text(self.bounds, scale, unit)
+
     def _show(self, si_value: float) -> str:
         """``si_value`` with its SI unit, and in the file's unit when that differs."""
         unit = "" if self.unit == "1" else self.unit
@@ -131,6 +142,13 @@ class Parameter:
         if self.file_unit and self.file_unit != self.unit:
             text += f" ({si_value / UNITS[self.file_unit][1]:g} {self.file_unit})"
         return text
+
+
+def _bounds_text(bounds: dict, scale: float, unit: str) -> str:
+    """``> 0 mm, <= 90 deg``-like text of SI ``bounds`` in a unit of ``scale`` SI units."""
+    return ", ".join(
+        f"{_BOUNDS[key][0]} {f'{bound / scale:g} {unit}'.strip()}" for key, bound in bounds.items()
+    )
 
 
 @dataclass(frozen=True)

@@ -297,3 +297,18 @@ def test_compare_of_other_scenes_and_of_a_failed_run(tmp_path, capsys):
     err = _one_line_error(capsys)
     assert f"{failed} is a run with status 'failed'" in err, err
     assert (out / "comparison.json").is_file()
+
+
+def test_scenes_name_lists_every_parameter_in_the_files_units(capsys):
+    """``scenes NAME``: one line per parameter with the value and bounds in the unit the scene
+    file uses (the file says ``final_angle`` = 60 deg, 0 < it <= 90 deg), and its doc."""
+    from shoulder_fem.scene import load_scene
+
+    assert main(["scenes", "shoulder-internal-rotation"]) == 0
+    out = capsys.readouterr().out
+    scene = load_scene("shoulder-internal-rotation")
+    lines = {ln.split()[0]: ln for ln in out.splitlines()[5:] if ln.strip()}
+    assert set(lines) == set(scene.parameters)
+    assert lines["final_angle"].split()[1:7] == ["60", "deg", ">", "0", "deg,", "<="]
+    assert scene.parameters["final_angle"].doc in lines["final_angle"]
+    assert lines["head_ratio"].split()[1:3] == ["0.92", ">="]  # dimensionless: no unit

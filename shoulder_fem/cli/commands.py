@@ -37,13 +37,35 @@ def say(text: str) -> None:
 
 
 def cmd_scenes(args) -> int:
-    """List built-in scenes, one line each."""
+    """List built-in scenes, one line each; with a name, that scene's parameters."""
     from shoulder_fem.scene import available_scenes, load_scene
 
+    if getattr(args, "name", None):
+        say(scene_parameters(load_scene(args.name)))
+        return 0
     for name in available_scenes():
         scene = load_scene(name)
         say(f"{name:28s} {scene.summary}")
     return 0
+
+
+def scene_parameters(scene) -> str:
+    """A scene's parameters, one line each: name, value and bounds in the file's units, doc."""
+    rows = [(name, *p.described(), p.doc) for name, p in scene.parameters.items()]
+    w_name = max(len(r[0]) for r in rows)
+    w_value = max(len(r[1]) for r in rows)
+    w_bounds = max(len(r[2]) for r in rows)
+    levels = ", ".join(scene.levels)
+    lines = [
+        f"{scene.name} ({scene.family}): {scene.summary}",
+        f"source: {scene.source}; mesh levels: {levels} (default {scene.default_level})",
+        "set with --set KEY=VALUE (SI, or a value with a unit of the right kind)",
+        "",
+        f"{'parameter':{w_name}s}  {'value':{w_value}s}  {'bounds':{w_bounds}s}  doc",
+    ]
+    for name, value, bounds, doc in rows:
+        lines.append(f"{name:{w_name}s}  {value:{w_value}s}  {bounds:{w_bounds}s}  {doc}")
+    return "\n".join(lines)
 
 
 def _prepare(args):

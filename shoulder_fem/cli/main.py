@@ -121,7 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"shoulder-fem {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    sub.add_parser("scenes", help="list the built-in scenes")
+    p = sub.add_parser("scenes", help="list the built-in scenes, or one scene's parameters")
+    p.add_argument("name", nargs="?", help="a scene (name or .toml path): list its parameters")
 
     p = sub.add_parser("run", help="run one scene with one method")
     p.add_argument("scene", help="built-in scene name or path to a .toml scene file")

@@ -312,3 +312,38 @@ def test_scenes_name_lists_every_parameter_in_the_files_units(capsys):
     assert lines["final_angle"].split()[1:7] == ["60", "deg", ">", "0", "deg,", "<="]
     assert scene.parameters["final_angle"].doc in lines["final_angle"]
     assert lines["head_ratio"].split()[1:3] == ["0.92", ">="]  # dimensionless: no unit
+
+
+def test_a_killed_runs_partial_folder_is_removed_by_the_next_run(tmp_path: Path) -> None:
+    """SIGKILL cannot be caught: the run leaves ``OUT.partial-*``. The next run into the same
+    ``OUT`` removes it (its owner process is dead) and writes its result; a staging folder of a
+    live process or of another host is left alone."""
+    import socket
+
+    from shoulder_fem.io.output import OWNER_NAME
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", "run", "shoulder-internal-rotation"]
+        + ["--method", "decoupled", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 120.0
+    while not list(tmp_path.glob("out.partial-*")):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    (stale,) = tmp_path.glob("out.partial-*")
+    live = tmp_path / "out.partial-live"
+    live.mkdir()
+    (live / OWNER_NAME).write_text(f"{socket.gethostname()} {os.getpid()}\n")
+    foreign = tmp_path / "out.partial-foreign"
+    foreign.mkdir()
+    (foreign / OWNER_NAME).write_text(f"not-{socket.gethostname()} {proc.pid}\n")
+    args = ["run", "spinning-bar", "--method", "decoupled", "--level", "coarse"]
+    args += ["--set", "end_time=0.01", "--out", str(out)]
+    assert main(["-q", *args]) == 0
+    assert not stale.exists() and live.exists() and foreign.exists()
+    assert (out / "summary.json").is_file() and not (out / OWNER_NAME).exists()

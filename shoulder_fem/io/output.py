@@ -17,6 +17,7 @@ import math
 import os
 import secrets
 import shutil
+import socket
 import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path, PurePath
@@ -29,6 +30,7 @@ if TYPE_CHECKING:
     from mpi4py import MPI
 
 __all__ = [
+    "OWNER_NAME",
     "OutputDir",
     "OutputError",
     "SUMMARY_NAME",
@@ -36,6 +38,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
+    "remove_stale_partials",
     "to_jsonable",
 ]
 
@@ -158,6 +161,44 @@ def atomic_savez(path: str | os.PathLike[str], arrays: Mapping[str, Any]) -> Non
 # --------------------------------------------------------------------------------------------
 
 
+#: In a staging folder: ``<host> <pid>`` of the process that writes it (rank 0).
+OWNER_NAME = ".owner"
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine (one owned by another user counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_partials(final: Path) -> list[Path]:
+    """Remove the staging folders of ``final`` left by runs that died on this machine.
+
+    A run killed outright (SIGKILL, out of memory, a node lost) cannot remove its
+    ``<final>.partial-*`` folder. One whose owner (:data:`OWNER_NAME`) is a process of this
+    host that no longer exists is removed; a folder of another host, or without an owner file,
+    is left alone. Returns the folders removed.
+    """
+    removed = []
+    host = socket.gethostname()
+    for staging in sorted(final.parent.glob(f"{final.name}.partial-*")):
+        try:
+            owner_host, pid = (staging / OWNER_NAME).read_text().split()
+            dead = owner_host == host and not _alive(int(pid))
+        except (OSError, ValueError):
+            continue
+        if dead:
+            shutil.rmtree(staging, ignore_errors=True)
+            logger.info("removed %s, left by a run that died (pid %s)", staging, pid)
+            removed.append(staging)
+    return removed
+
+
 def _check_final(final: Path) -> str | None:
     """Why ``final`` cannot become an output folder, or None if it can."""
     parent = final.parent
@@ -185,8 +226,9 @@ def _check_final(final: Path) -> str | None:
 class OutputDir:
     """An output folder that appears complete or not at all.
 
-    Construction (collective) validates ``final`` and creates the staging folder
-    ``<final>.partial-<token>`` with a ``scratch`` folder inside; the run writes into
+    Construction (collective) validates ``final``, removes the staging folders of ``final``
+    left by runs that died (:func:`remove_stale_partials`) and creates the staging folder
+    ``<final>.partial-<token>`` with a ``scratch`` folder and its owner inside; the run writes into
     :attr:`path`. :meth:`commit` renames the staging folder to ``final``, replacing a previous
     shoulder-fem result there (a folder holding ``summary.json``); :meth:`abort` removes it.
 
@@ -212,11 +254,13 @@ class OutputDir:
             if reason is not None:
                 reply = (None, f"--out {self.final}: {reason}")
             else:
+                remove_stale_partials(self.final)
                 token = secrets.token_hex(4)
                 staging = self.final.parent / f"{self.final.name}.partial-{token}"
                 try:
                     staging.mkdir()
                     (staging / "scratch").mkdir()
+                    (staging / OWNER_NAME).write_text(f"{socket.gethostname()} {os.getpid()}\n")
                     reply = (token, None)
                 except OSError as exc:
                     shutil.rmtree(staging, ignore_errors=True)
@@ -282,6 +326,8 @@ class OutputDir:
 
     def _commit_rank0(self) -> None:
         shutil.rmtree(self.scratch, ignore_errors=True)
+        with contextlib.suppress(FileNotFoundError):
+            (self._staging / OWNER_NAME).unlink()
         final = self.final
         trash = None
         if final.is_symlink() or final.exists():

@@ -155,10 +155,10 @@ def test_form_compilation_is_quiet(tmp_path: Path, verbosity: str) -> None:
 
 
 def _terminated_while_writing(
-    args: list[str], folder: Path, pattern: str, settle: float = 0.0
+    args: list[str], folder: Path, pattern: str, settle: float = 0.0, sig=signal.SIGTERM
 ) -> tuple[int, str]:
-    """Start ``shoulder-fem -q ARGS``, SIGTERM it once ``folder/pattern`` exists (and ``settle``
-    seconds more); its exit status and stderr."""
+    """Start ``shoulder-fem -q ARGS``, send ``sig`` once ``folder/pattern`` exists (and
+    ``settle`` seconds more); its exit status and stderr."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "shoulder_fem.cli", "-q", *args],
         stdout=subprocess.DEVNULL,
@@ -170,7 +170,7 @@ def _terminated_while_writing(
         assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
         time.sleep(0.1)
     time.sleep(settle)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     return proc.returncode, err
 
@@ -347,3 +347,20 @@ def test_a_killed_runs_partial_folder_is_removed_by_the_next_run(tmp_path: Path)
     assert main(["-q", *args]) == 0
     assert not stale.exists() and live.exists() and foreign.exists()
     assert (out / "summary.json").is_file() and not (out / OWNER_NAME).exists()
+
+
+def test_ctrl_c_is_one_line_and_removes_the_unfinished_output(tmp_path: Path) -> None:
+    """SIGINT (Ctrl-C) during a run: exit status 130, one line (no traceback), nothing left."""
+    from shoulder_fem.cli import EXIT_INTERRUPTED
+
+    out = tmp_path / "dec"
+    args = ["run", "shoulder-internal-rotation", "--method", "decoupled", "--out", str(out)]
+    status, err = _terminated_while_writing(
+        args, tmp_path, "dec.partial-*", settle=1.0, sig=signal.SIGINT
+    )
+    assert status == EXIT_INTERRUPTED == 130, err
+    assert (
+        err.strip()
+        == f"shoulder-fem: error: interrupted (Ctrl-C): the unfinished output {out} was removed"
+    )
+    assert list(tmp_path.iterdir()) == []

@@ -2,6 +2,7 @@
 
 from shoulder_fem.cli.main import (
     EXIT_INPUT,
+    EXIT_INTERRUPTED,
     EXIT_SOLVER,
     EXIT_TERMINATED,
     build_parser,
@@ -9,4 +10,12 @@ from shoulder_fem.cli.main import (
     setup_logging,
 )
 
-__all__ = ["EXIT_INPUT", "EXIT_SOLVER", "EXIT_TERMINATED", "build_parser", "main", "setup_logging"]
+__all__ = [
+    "EXIT_INPUT",
+    "EXIT_INTERRUPTED",
+    "EXIT_SOLVER",
+    "EXIT_TERMINATED",
+    "build_parser",
+    "main",
+    "setup_logging",
+]

@@ -11,6 +11,7 @@ removed, and the command exits with status 143.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import signal
@@ -25,6 +26,7 @@ logger = logging.getLogger("shoulder_fem")
 
 EXIT_INPUT = 2
 EXIT_SOLVER = 3
+EXIT_INTERRUPTED = 128 + signal.SIGINT  # 130, the shell's status for Ctrl-C
 EXIT_TERMINATED = 128 + signal.SIGTERM  # 143, the shell's status for a process ended by SIGTERM
 
 
@@ -167,6 +169,12 @@ def main(argv: list[str] | None = None) -> int:
     from shoulder_fem.scene import SceneError
 
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
+    # Ctrl-C raises KeyboardInterrupt (one line, exit 130, the unfinished output removed). The
+    # gmsh 4.8 module sets SIGINT to its default action when imported (a Ctrl-C while meshing
+    # killed the run with no clean-up, measured): import it first, then take SIGINT back.
+    with contextlib.suppress(ImportError):
+        import gmsh  # noqa: F401
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return {
             "scenes": commands.cmd_scenes,
@@ -186,3 +194,8 @@ def main(argv: list[str] | None = None) -> int:
         where = f": the unfinished output {out} was removed" if out else ""
         commands.error(f"stopped by SIGTERM{where}")
         return EXIT_TERMINATED
+    except KeyboardInterrupt:
+        out = getattr(args, "out", None)
+        where = f": the unfinished output {out} was removed" if out else ""
+        commands.error(f"interrupted (Ctrl-C){where}")
+        return EXIT_INTERRUPTED

@@ -185,3 +185,38 @@ def test_layers_import_only_downwards():
             if target != "shoulder_fem" and _layer(target) not in ALLOWED[layer]:
                 wrong.append(f"{MODULES[name].relative_to(ROOT)}:{line} ({layer}) imports {target}")
     assert not wrong, "\n".join(wrong)
+
+
+#: Third-party modules that Debian 12 provides and pip cannot build (scripts/setup.sh installs
+#: them; pyproject.toml says so).
+DEBIAN_ONLY = {"dolfinx", "petsc4py", "mpi4py", "ufl", "basix", "ffcx", "gmsh"}
+#: Modules that a declared distribution of another name provides.
+PROVIDED_BY = {"mpl_toolkits": "matplotlib"}
+
+
+def test_every_third_party_import_is_declared():
+    """Every third-party module the package imports is a declared dependency of pyproject.toml
+    or one of the Debian-only packages: a user who installs it elsewhere learns what it needs."""
+    import sys
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = {
+        d.split(">")[0].split("=")[0].split("[")[0].strip() for d in project["dependencies"]
+    }
+    used = set()
+    for folder in ("shoulder_fem", "meshes", "forms"):
+        for path in (ROOT / folder).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    used |= {a.name.split(".")[0] for a in node.names}
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    used.add(node.module.split(".")[0])
+    third_party = {
+        m
+        for m in used
+        if m not in sys.stdlib_module_names and m not in {"shoulder_fem", "meshes", "forms"}
+    }
+    assert third_party, used
+    undeclared = {m for m in third_party - DEBIAN_ONLY if PROVIDED_BY.get(m, m) not in declared}
+    assert not undeclared, sorted(undeclared)

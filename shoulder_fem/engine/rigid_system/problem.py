@@ -34,7 +34,15 @@ from shoulder_fem.engine.so3 import exp_so3, log_so3
 from shoulder_fem.engine.solver import SolveStats
 from shoulder_fem.engine.springs import Spring
 
-__all__ = ["ContactProduct", "ReducedProblem", "RigidSolveStats", "timed"]
+__all__ = [
+    "STALE_FRACTION",
+    "ContactProduct",
+    "ReducedProblem",
+    "RigidSolveStats",
+    "jacobian_is_stale",
+    "rebuild_jacobian",
+    "timed",
+]
 
 
 @contextlib.contextmanager
@@ -47,7 +55,7 @@ def timed(stats: SolveStats, name: str) -> Iterator[None]:
         setattr(stats, name, getattr(stats, name) + time.perf_counter() - t0)
 
 
-#: J is rebuilt between solves when this fraction of its entries is stale (:meth:`compact`).
+#: J is rebuilt between solves when this fraction of it is stale (:func:`rebuild_jacobian`).
 STALE_FRACTION = 0.05
 
 
@@ -89,7 +97,7 @@ class RigidSolveStats(SolveStats):
     #: (:class:`~.guard.TrialGuard`).
     shortened_steps: int = 0
     step_halvings: int = 0
-    #: Times J was rebuilt without its stale contact entries (:meth:`ReducedProblem.compact`).
+    #: Times J was rebuilt without its stale contact entries (:func:`rebuild_jacobian`).
     pattern_rebuilds: int = 0
     residual_s: float = 0.0
     jacobian_s: float = 0.0
@@ -399,65 +407,19 @@ class ReducedProblem:
             self.contact.add(J, fe, self.P, self.stats)
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------
-    def compact(self) -> None:
-        """Rebuild J without the entries of contacts gone (collective; between solves).
-
-        J's pattern only grows within a solve (every new contact entry is merged); over a long
-        run its stale entries cost the LU fill and memory (measured at ``paper``, part 1: J from
-        0.99M nonzeros at 0 deg to 1.33M at 50 deg, MUMPS from 50 to 98 MB; rebuilt, 1.09M and
-        64 MB at 50 deg). When more than :data:`STALE_FRACTION` of J's entries
-        are neither the FE product's nor the current contact product's (:meth:`stale`), J is
-        rebuilt on those two patterns (the control row and new contact entries are merged again
-        by the next Jacobian, whose factorization is then analysed afresh).
-
-        The caller frees the old factorization first and gives the SNES the new J
-        (:meth:`RigidSystem._run_snes`): the old J and its factors are not held beside the new.
-        """
-        from shoulder_fem.engine.contact import add_to_pattern
-
-        self.J.destroy()
-        self.J = self._pattern()
-        self.stats.pattern_rebuilds += 1
-        self.contact.keys = add_to_pattern(self.J, self.contact.C, np.zeros(0, np.int64), self.comm)
-        self.J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
-        self._nonzeros = None
-
-    def stale(self) -> bool:
-        """Whether more than :data:`STALE_FRACTION` of J's entries are of contacts gone."""
-        if self.fe is None or self.contact.C is None:
-            return False
-        info = PETSc.Mat.InfoType.GLOBAL_SUM
-        needed = self.C.getInfo(info)["nz_used"] + self.contact.C.getInfo(info)["nz_used"]
-        return self.J.getInfo(info)["nz_used"] > (1.0 + STALE_FRACTION) * needed
-
     def _create_jacobian(self) -> PETSc.Mat:
         if self.fe is not None:
             self.update_state(self.x_from_state())
             self.fe.assemble_tangent()
             with ptap_algorithm(self.comm):
                 self.C = self.fe.K.PtAP(self.P)
-        J = self._pattern()
+        J = jacobian_pattern(self)
         J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         return J
 
-    def _pattern(self) -> PETSc.Mat:
-        """A new J on the FE product's pattern (if any) and the rigid and spring blocks."""
-        comm, nb, lay = self.comm, len(self.bodies), self.layout
-        rigid = lay.rigid_range(nb)
-        if self.fe is not None:
-            J = self.C.duplicate(copy=True)
-            J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
-        else:
-            J = PETSc.Mat().createAIJ(((lay.n_local, lay.n_global),) * 2, comm=comm)
-            J.setPreallocationNNZ((6 * nb, 0))
-        if comm.rank == 0 and nb:
-            J.setValues(rigid, rigid, np.zeros((6 * nb, 6 * nb)), addv=PETSc.InsertMode.ADD)
-        if any(e.kind == "node" for e in self.ends):
-            terms = self.rigid_terms(with_tangent=True)  # the blocks' positions
-            zero = [(i, k, 0.0 * block) for i, k, block in terms.node_tangent]
-            self.layout.add_node_blocks(J, self.ends, zero, terms.T)
-        J.assemble()
-        return J
+    def reset_analysis(self) -> None:
+        """Let the next Jacobian's factorization be analysed afresh (J was replaced)."""
+        self._nonzeros = None
 
     def destroy(self) -> None:
         """Free the PETSc objects."""
@@ -467,3 +429,57 @@ class ReducedProblem:
         self.contact.destroy()
         for obj in objs:
             obj.destroy()
+
+
+def jacobian_is_stale(problem: ReducedProblem) -> bool:
+    """Whether more than :data:`STALE_FRACTION` of ``problem.J``'s entries are of contacts gone."""
+    if problem.fe is None or problem.contact.C is None:
+        return False
+    info = PETSc.Mat.InfoType.GLOBAL_SUM
+    needed = problem.C.getInfo(info)["nz_used"] + problem.contact.C.getInfo(info)["nz_used"]
+    return problem.J.getInfo(info)["nz_used"] > (1.0 + STALE_FRACTION) * needed
+
+
+def rebuild_jacobian(problem: ReducedProblem) -> None:
+    """Rebuild ``problem.J`` without the entries of contacts gone (collective; between solves).
+
+    J's pattern only grows within a solve (every new contact entry is merged); over a long
+    run its stale entries cost the LU fill and memory (measured at ``paper``, part 1: J from
+    0.99M nonzeros at 0 deg to 1.33M at 50 deg, MUMPS from 50 to 98 MB; rebuilt, 1.09M and
+    64 MB at 50 deg). When more than :data:`STALE_FRACTION` of J's entries are neither the FE
+    product's nor the current contact product's (:func:`jacobian_is_stale`), J is rebuilt on
+    those two patterns (the control row and new contact entries are merged again by the next
+    Jacobian, whose factorization is then analysed afresh).
+
+    The caller frees the old factorization first and gives the SNES the new J
+    (:meth:`RigidSystem._run_snes`): the old J and its factors are not held beside the new.
+    """
+    from shoulder_fem.engine.contact import add_to_pattern
+
+    problem.J.destroy()
+    problem.J = jacobian_pattern(problem)
+    problem.stats.pattern_rebuilds += 1
+    empty = np.zeros(0, np.int64)
+    problem.contact.keys = add_to_pattern(problem.J, problem.contact.C, empty, problem.comm)
+    problem.J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+    problem.reset_analysis()
+
+
+def jacobian_pattern(problem: ReducedProblem) -> PETSc.Mat:
+    """A new J of ``problem``: the FE product's pattern (if any), the rigid and spring blocks."""
+    comm, nb, lay = problem.comm, len(problem.bodies), problem.layout
+    rigid = lay.rigid_range(nb)
+    if problem.fe is not None:
+        J = problem.C.duplicate(copy=True)
+        J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+    else:
+        J = PETSc.Mat().createAIJ(((lay.n_local, lay.n_global),) * 2, comm=comm)
+        J.setPreallocationNNZ((6 * nb, 0))
+    if comm.rank == 0 and nb:
+        J.setValues(rigid, rigid, np.zeros((6 * nb, 6 * nb)), addv=PETSc.InsertMode.ADD)
+    if any(e.kind == "node" for e in problem.ends):
+        terms = problem.rigid_terms(with_tangent=True)  # the blocks' positions
+        zero = [(i, k, 0.0 * block) for i, k, block in terms.node_tangent]
+        problem.layout.add_node_blocks(J, problem.ends, zero, terms.T)
+    J.assemble()
+    return J

@@ -23,7 +23,13 @@ from shoulder_fem.engine.rigid_system.deformable import DeformablePart
 from shoulder_fem.engine.rigid_system.dynamics import StepState
 from shoulder_fem.engine.rigid_system.guard import TrialGuard
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout, check_topology
-from shoulder_fem.engine.rigid_system.problem import ReducedProblem, RigidSolveStats, timed
+from shoulder_fem.engine.rigid_system.problem import (
+    ReducedProblem,
+    RigidSolveStats,
+    jacobian_is_stale,
+    rebuild_jacobian,
+    timed,
+)
 from shoulder_fem.engine.rigid_system.reports import SystemReports
 from shoulder_fem.engine.solver import (
     ConvergenceError,
@@ -212,7 +218,7 @@ class RigidSystem(SystemReports, ControlledSystem):
         )
         self.snes, self._linesearch = create_snes(problem, self._guard, self.prefix, options)
         #: Whether every Newton iteration evaluates J (not a lagged, chord Jacobian): only then
-        #: may J be rebuilt between solves (:meth:`ReducedProblem.compact`), since a lagged
+        #: may J be rebuilt between solves (:func:`~.problem.rebuild_jacobian`), since a lagged
         #: factorization would meet the new matrix unfilled.
         self._fresh_jacobians = int((options or {}).get("snes_lag_jacobian", 1)) == 1
 
@@ -260,9 +266,9 @@ class RigidSystem(SystemReports, ControlledSystem):
 
     def _run_snes(self, step: str) -> int:
         """Run the SNES from the current state (or predictor); leave the state at the solution."""
-        if self._fresh_jacobians and self._problem.stale():
+        if self._fresh_jacobians and jacobian_is_stale(self._problem):
             self.snes.getKSP().reset()  # frees the factorization and its hold on the old J
-            self._problem.compact()
+            rebuild_jacobian(self._problem)
             J = self._problem.J
             self.snes.setJacobian(self._problem.jacobian, J, J)
         x = self._problem.x_from_state()

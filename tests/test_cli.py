@@ -364,3 +364,16 @@ def test_ctrl_c_is_one_line_and_removes_the_unfinished_output(tmp_path: Path) ->
         == f"shoulder-fem: error: interrupted (Ctrl-C): the unfinished output {out} was removed"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_run_prints_its_probes_aligned_with_units(tmp_path, capsys):
+    """``run`` ends with its probes, one per line, values in one column, each with its SI unit;
+    a dimensionless one shows "–" (not "1")."""
+    args = ["run", "spinning-bar", "--method", "decoupled", "--level", "coarse"]
+    assert main([*args, "--set", "end_time=0.01", "--out", str(tmp_path / "r")]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("  ")]
+    columns = {len(ln) - len(ln.lstrip()[len(ln.split()[0]) :].lstrip()) for ln in lines}
+    assert len(columns) == 1, lines  # the values start in one column
+    by_name = {ln.split()[0]: ln.split()[1:] for ln in lines}
+    assert by_name["max_decoupling_indicator"][-1] == "–"
+    assert by_name["root_axial_stress"][-1] == "Pa"

@@ -104,13 +104,13 @@ def _probe_lines(summary: dict) -> str:
         f"peak memory {res['peak_rss_mb']:.0f} MB, {summary.get('dofs')} DOFs, "
         f"{res['ranks']} rank(s)"
     ]
+    units = summary.get("probe_units", {})
+    width = max((len(name) for name in summary["probes"]), default=0)
     for name, value in summary["probes"].items():
-        unit = summary.get("probe_units", {}).get(name) or ""
-        lines.append(
-            f"  {name:28s} {value:.6g} {unit}"
-            if isinstance(value, float)
-            else f"  {name:28s} {value} {unit}"
-        )
+        unit = units.get(name) or ""
+        unit = "–" if unit == "1" else unit  # dimensionless
+        text = f"{value:.6g}" if isinstance(value, float) else str(value)
+        lines.append(f"  {name:{width}s}  {text} {unit}".rstrip())
     return "\n".join(lines)
 
 

@@ -377,3 +377,42 @@ def test_run_prints_its_probes_aligned_with_units(tmp_path, capsys):
     by_name = {ln.split()[0]: ln.split()[1:] for ln in lines}
     assert by_name["max_decoupling_indicator"][-1] == "–"
     assert by_name["root_axial_stress"][-1] == "Pa"
+
+
+def test_mesh_refuses_a_ct_that_misses_the_model_and_warns_on_a_uniform_one(tmp_path, capsys):
+    """``mesh --ct``: the phantom the command writes (density.nii.gz) moved 5 m away is refused
+    in one line that says how many nodes fall outside and where the image and the mesh are
+    (exit 2, nothing written); the phantom's grid with one value everywhere is accepted with a
+    warning that the density is uniform."""
+    import logging
+
+    import numpy as np
+
+    from shoulder_fem.io import ct
+
+    base = ["mesh", "shoulder-internal-rotation", "--level", "coarse", "--variant", "rigid-bone"]
+    first = tmp_path / "first"
+    assert main(["-q", *base, "--out", str(first)]) == 0
+    phantom = ct.read_ct(first / "density.nii.gz")
+    far = ct.CTImage(phantom.hu, phantom.affine.copy())
+    far.affine[:3, 3] += 5.0
+    ct.write_nifti(far, tmp_path / "far.nii.gz")
+    capsys.readouterr()
+    out = tmp_path / "far"
+    args = [*base, "--ct", str(tmp_path / "far.nii.gz"), "--out", str(out)]
+    assert main(["-q", *args]) == EXIT_INPUT
+    err = _one_line_error(capsys)
+    assert "100 % of the mesh's nodes lie outside the image (image from (" in err, err
+    assert not out.exists() and not list(tmp_path.glob("far.partial-*"))
+    flat = ct.CTImage(np.full_like(phantom.hu, 300.0), phantom.affine)
+    ct.write_nifti(flat, tmp_path / "flat.nii.gz")
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger("shoulder_fem.cli.mesh").addHandler(handler)
+    try:
+        args = [*base, "--ct", str(tmp_path / "flat.nii.gz"), "--out", str(tmp_path / "flat")]
+        assert main(["-q", *args]) == 0
+    finally:
+        logging.getLogger("shoulder_fem.cli.mesh").removeHandler(handler)
+    assert any("the density is uniform" in r.getMessage() for r in records), records

@@ -228,6 +228,25 @@ def sample_trilinear(image: CTImage, points: np.ndarray) -> np.ndarray:
     return out
 
 
+def outside_fraction(image: CTImage, points: np.ndarray) -> np.ndarray:
+    """Whether each of ``points`` (n, 3, m) lies outside the image's voxel grid (n,) bool."""
+    inv = np.linalg.inv(image.affine)
+    ijk = (np.c_[points, np.ones(len(points))] @ inv.T)[:, :3]
+    shape = np.array(image.hu.shape)
+    tol = 1e-9
+    return np.any((ijk < -tol) | (ijk > shape - 1.0 + tol), axis=1)
+
+
+def image_box(image: CTImage) -> tuple[np.ndarray, np.ndarray]:
+    """The lower and upper corners (m) of the image's voxel centres in the model frame."""
+    shape = np.array(image.hu.shape) - 1
+    corners = np.array(
+        [[i, j, k, 1] for i in (0, shape[0]) for j in (0, shape[1]) for k in (0, shape[2])]
+    )
+    xyz = (corners @ image.affine.T)[:, :3]
+    return xyz.min(axis=0), xyz.max(axis=0)
+
+
 def nodal_density(
     image: CTImage, points: np.ndarray, calibration: Calibration | None = None
 ) -> np.ndarray:

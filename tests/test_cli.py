@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import signal
 import subprocess
@@ -231,6 +233,20 @@ def test_sigterm_during_bench_stops_its_run_too(tmp_path: Path) -> None:
     assert str(out / "coupled") not in ps.stdout, ps.stdout
 
 
+@contextlib.contextmanager
+def _log_records(name: str):
+    """The records logged by logger ``name`` inside the block (the CLI sets its own handlers,
+    so pytest's caplog on the root logger does not see them)."""
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger(name).addHandler(handler)
+    try:
+        yield records
+    finally:
+        logging.getLogger(name).removeHandler(handler)
+
+
 def _one_line_error(capsys) -> str:
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("shoulder-fem: error:"), err
@@ -384,8 +400,6 @@ def test_mesh_refuses_a_ct_that_misses_the_model_and_warns_on_a_uniform_one(tmp_
     in one line that says how many nodes fall outside and where the image and the mesh are
     (exit 2, nothing written); the phantom's grid with one value everywhere is accepted with a
     warning that the density is uniform."""
-    import logging
-
     import numpy as np
 
     from shoulder_fem.io import ct
@@ -406,13 +420,33 @@ def test_mesh_refuses_a_ct_that_misses_the_model_and_warns_on_a_uniform_one(tmp_
     assert not out.exists() and not list(tmp_path.glob("far.partial-*"))
     flat = ct.CTImage(np.full_like(phantom.hu, 300.0), phantom.affine)
     ct.write_nifti(flat, tmp_path / "flat.nii.gz")
-    records = []
-    handler = logging.Handler()
-    handler.emit = records.append
-    logging.getLogger("shoulder_fem.cli.mesh").addHandler(handler)
-    try:
+    with _log_records("shoulder_fem.cli.mesh") as records:
         args = [*base, "--ct", str(tmp_path / "flat.nii.gz"), "--out", str(tmp_path / "flat")]
         assert main(["-q", *args]) == 0
-    finally:
-        logging.getLogger("shoulder_fem.cli.mesh").removeHandler(handler)
     assert any("the density is uniform" in r.getMessage() for r in records), records
+
+
+def test_a_decoupled_run_outside_its_validity_says_so(tmp_path, capsys):
+    """spin-up-beam, decoupled (the README's case where the linear decoupling fails: 0.57 m of
+    deflection, spin-stiffness ratio 1.58 measured): a warning, ``"validity": "outside"`` with
+    the reason in summary.json, and ``compare`` shows it; spinning-bar by default (ratio 0.017,
+    indicator 0.0025) is ``inside``."""
+    import json
+
+    beam = tmp_path / "beam"
+    with _log_records("shoulder_fem.families.driven_body.indicator") as records:
+        assert main(["-q", "run", "spin-up-beam", "--method", "decoupled", "--out", str(beam)]) == 0
+    summary = json.loads((beam / "summary.json").read_text())
+    assert summary["validity"] == "outside", summary.get("validity")
+    ratio = summary["probes"]["max_spin_stiffness_ratio"]
+    assert ratio > 1.0 and f"spin-stiffness ratio {ratio:.3g} > 0.1" in summary["validity_reason"]
+    assert any("outside the decoupled method's validity" in r.getMessage() for r in records)
+    capsys.readouterr()
+    assert main(["-q", "compare", str(beam), str(beam), "--out", str(tmp_path / "cmp")]) == 0
+    assert "OUTSIDE VALIDITY (other, decoupled): spin-stiffness ratio" in capsys.readouterr().out
+    report = json.loads((tmp_path / "cmp" / "comparison.json").read_text())
+    assert report["other"]["validity"] == "outside"
+    bar = tmp_path / "bar"
+    args = ["run", "spinning-bar", "--method", "decoupled", "--level", "coarse", "--out", str(bar)]
+    assert main(["-q", *args]) == 0
+    assert json.loads((bar / "summary.json").read_text())["validity"] == "inside"

@@ -195,6 +195,12 @@ def _comparison_lines(report: dict) -> str:
     lines = [
         f"{report['scene']}: {report['other']['method']} against {report['reference']['method']}"
     ]
+    for role in ("reference", "other"):
+        info = report[role]
+        if info.get("validity") == "outside":
+            lines.append(
+                f"  OUTSIDE VALIDITY ({role}, {info['method']}): {info.get('validity_reason')}"
+            )
     for name, p in report["probes"].items():
         lines.append(
             f"  {name:28s} ref {p['reference']:.6g}  other {p['other']:.6g}  "

@@ -63,6 +63,17 @@ def resource_ratios(ref: dict, other: dict) -> dict:
     }
 
 
+def _run_info(summary: dict) -> dict:
+    """Method, level, status and validity (``inside``/``outside`` with its reason, or None)."""
+    return {
+        "method": summary.get("method"),
+        "level": summary.get("level"),
+        "status": summary.get("status"),
+        "validity": summary.get("validity"),
+        "validity_reason": summary.get("validity_reason"),
+    }
+
+
 def compare_summaries(ref: dict, other: dict) -> dict:
     """All metrics between two runs' summaries (JSON-ready)."""
     if ref.get("scene") != other.get("scene"):
@@ -86,8 +97,8 @@ def compare_summaries(ref: dict, other: dict) -> dict:
     }
     return {
         "scene": ref.get("scene"),
-        "reference": {"method": ref.get("method"), "level": ref.get("level")},
-        "other": {"method": other.get("method"), "level": other.get("level")},
+        "reference": _run_info(ref),
+        "other": _run_info(other),
         "probes": probes,
         "series": series,
         "resources": {

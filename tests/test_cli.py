@@ -450,3 +450,29 @@ def test_a_decoupled_run_outside_its_validity_says_so(tmp_path, capsys):
     args = ["run", "spinning-bar", "--method", "decoupled", "--level", "coarse", "--out", str(bar)]
     assert main(["-q", *args]) == 0
     assert json.loads((bar / "summary.json").read_text())["validity"] == "inside"
+
+
+def test_a_bench_or_compare_result_is_replaced_by_a_rerun(tmp_path):
+    """Every command's result folder may be replaced by the same command's rerun (a bench
+    folder holds report.json and the runs, no summary.json at its top: a rerun used to be
+    refused as "not a shoulder-fem result"); a foreign folder still is refused."""
+    import json
+
+    out = tmp_path / "bench"
+    args = ["-q", "bench", "spinning-bar", "--level", "coarse", "--set", "end_time=0.01"]
+    assert main([*args, "--out", str(out)]) == 0
+    first = json.loads((out / "coupled" / "summary.json").read_text())["created"]
+    time.sleep(1.1)  # "created" has a resolution of one second
+    assert main([*args, "--out", str(out)]) == 0
+    assert json.loads((out / "coupled" / "summary.json").read_text())["created"] != first
+    cmp = tmp_path / "cmp"
+    for _ in range(2):
+        assert (
+            main(["-q", "compare", str(out / "coupled"), str(out / "decoupled"), "--out", str(cmp)])
+            == 0
+        )
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    assert main([*args, "--out", str(foreign)]) == EXIT_INPUT
+    assert (foreign / "notes.txt").read_text() == "mine"

@@ -33,11 +33,13 @@ __all__ = [
     "OWNER_NAME",
     "OutputDir",
     "OutputError",
+    "RESULT_FILES",
     "SUMMARY_NAME",
     "atomic_savez",
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
+    "is_result",
     "remove_stale_partials",
     "to_jsonable",
 ]
@@ -215,12 +217,22 @@ def _check_final(final: Path) -> str | None:
     if final.exists():
         if not final.is_dir():
             return "exists and is not a folder"
-        if any(final.iterdir()) and not (final / SUMMARY_NAME).is_file():
+        if any(final.iterdir()) and not is_result(final):
             return (
-                f"is a non-empty folder without {SUMMARY_NAME} (not a shoulder-fem result); "
-                "refusing to replace it"
+                f"is a non-empty folder without {' or '.join(RESULT_FILES)} (not a "
+                "shoulder-fem result); refusing to replace it"
             )
     return None
+
+
+#: The file at the top of every result folder: a run's summary, a bench's or compare's report,
+#: a mesh's statistics. A folder holding one may be replaced by a new result.
+RESULT_FILES = (SUMMARY_NAME, "report.json", "comparison.json", "mesh.json")
+
+
+def is_result(folder: Path) -> bool:
+    """Whether ``folder`` is a shoulder-fem result (run, bench, compare or mesh)."""
+    return any((folder / name).is_file() for name in RESULT_FILES)
 
 
 class OutputDir:
@@ -335,7 +347,7 @@ class OutputDir:
                 raise OutputError("the output path became a file or link during the run")
             if not any(final.iterdir()):
                 final.rmdir()
-            elif (final / SUMMARY_NAME).is_file():
+            elif is_result(final):
                 trash = final.parent / f".{final.name}.trash-{self.token}"
                 os.rename(final, trash)
             else:

@@ -476,3 +476,38 @@ def test_a_bench_or_compare_result_is_replaced_by_a_rerun(tmp_path):
     (foreign / "notes.txt").write_text("mine")
     assert main([*args, "--out", str(foreign)]) == EXIT_INPUT
     assert (foreign / "notes.txt").read_text() == "mine"
+
+
+def test_a_stopped_bench_keeps_the_finished_run_and_resume_reuses_it(tmp_path):
+    """SIGTERM while the decoupled run of a serial bench runs: the finished coupled run is kept
+    (exit 143, the message says where; bench.json says incomplete); ``bench --resume`` reuses
+    it (the same summary, not run again) and runs the decoupled one; a changed parameter is a
+    different request: nothing is reused."""
+    import json
+
+    out = tmp_path / "bench"
+    args = ["bench", "spinning-bar", "--level", "coarse", "--out", str(out)]
+    pattern = "bench.partial-*/decoupled.partial-*"  # the coupled run has finished
+    status, err = _terminated_while_writing(args, tmp_path, pattern)
+    assert status == 143, err
+    assert f"the finished coupled run kept in {out}" in err, err
+    state = json.loads((out / "bench.json").read_text())
+    assert state["status"] == "incomplete" and state["finished"] == ["coupled"]
+    kept = json.loads((out / "coupled" / "summary.json").read_text())
+    done = subprocess.run(
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", *args, "--resume"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "coupled: reusing the finished run" in done.stdout
+    assert json.loads((out / "coupled" / "summary.json").read_text()) == kept
+    assert json.loads((out / "bench.json").read_text())["status"] == "complete"
+    assert (out / "report.json").is_file()
+    again = subprocess.run(
+        [sys.executable, "-m", "shoulder_fem.cli", "-q", *args, "--resume"]
+        + ["--set", "end_time=0.02"],
+        capture_output=True,
+        text=True,
+    )
+    assert again.returncode == 0 and "reusing" not in again.stdout, again.stdout

@@ -7,7 +7,6 @@ them into one line and an exit status).
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -68,7 +67,8 @@ def scene_parameters(scene) -> str:
     return "\n".join(lines)
 
 
-def _prepare(args):
+def prepare(args):
+    """The scene with ``--set`` applied (checked) and the linear solver's options."""
     from shoulder_fem.api import check_method
     from shoulder_fem.engine.solver import linear_solver_options
     from shoulder_fem.scene import load_scene
@@ -84,7 +84,7 @@ def cmd_run(args) -> int:
     """Run one scene with one method."""
     from shoulder_fem.api import RunFailed, run
 
-    scene, options = _prepare(args)
+    scene, options = prepare(args)
     try:
         result = run(
             scene, args.method, args.level, args.out, solver_options=options, make_parents=False
@@ -214,82 +214,6 @@ def _comparison_lines(report: dict) -> str:
     r = report["resources"]
     lines.append(f"  speed-up (CPU) {r['speedup_cpu']:.2f}x   memory ratio {r['memory_ratio']:.2f}")
     return "\n".join(lines)
-
-
-def cmd_bench(args) -> int:
-    """Run both methods, then write the family's report (report.json, report.md, figures)."""
-    from mpi4py import MPI
-
-    from shoulder_fem.api import METHODS, RunFailed, run, scene_family
-    from shoulder_fem.families.base import BenchReport
-    from shoulder_fem.io.output import OutputDir
-
-    comm = MPI.COMM_WORLD
-    scene, options = _prepare(args)
-    fam = scene_family(scene)  # both methods, before anything runs
-    level = args.level or scene.default_level
-    with OutputDir(args.out, comm) as out:
-        runs = {}
-        for method in METHODS:
-            try:
-                if comm.size == 1:
-                    runs[method] = _run_apart(args, method, out.path / method)
-                else:
-                    runs[method] = run(
-                        scene,
-                        method,
-                        args.level,
-                        out.path / method,
-                        comm=comm,
-                        solver_options=options,
-                    ).data
-            except RunFailed as err:
-                out.commit()
-                raise SolverFailure(str(err)) from err
-        bench = BenchReport(scene, level, runs, out.path, comm)
-        text = (fam.report or generic_report)(bench)
-    for method, data in runs.items():
-        if data.get("status") != "ok":
-            say(f"{method}: {data.get('status')}: {data.get('message')}")
-    say(text)
-    say(f"report: {args.out / 'report.md'}")
-    return 0
-
-
-def _run_apart(args, method: str, folder: Path) -> dict:
-    """``shoulder-fem run`` of one method in a process of its own; its summary.
-
-    Serial ``bench`` runs each method apart, so that each one's peak memory is its own: in one
-    process the second method started with what the first had left (measured at ``paper``:
-    the decoupled run's peak 573 MB after the coupled run, 537 MB alone). A stopped ``bench``
-    (SIGTERM) stops the child too.
-
-    Raises:
-        RunFailed: The run failed (its summary says where); the child printed why.
-        SolverFailure: The child ended otherwise without a summary (its status named).
-    """
-    from shoulder_fem.api import Result, RunFailed
-
-    cmd = [sys.executable, "-m", "shoulder_fem.cli"]
-    cmd += ["-q"] if args.quiet else ["-v"] * max(args.verbose - 1, 0)
-    cmd += ["run", str(args.scene), "--method", method, "--out", str(folder)]
-    cmd += ["--linear-solver", args.linear_solver]
-    cmd += [] if args.level is None else ["--level", args.level]
-    for item in args.sets:
-        cmd += ["--set", item]
-    child = subprocess.Popen(cmd)
-    try:
-        status = child.wait()
-    finally:
-        if child.poll() is None:  # interrupted here: stop the child, which cleans up
-            child.terminate()
-            child.wait()
-    if (folder / "summary.json").is_file():
-        result = Result.load(folder)
-        if status == 0:
-            return result.data
-        raise RunFailed(f"{method}: {result.data.get('message')}", result)
-    raise SolverFailure(f"bench: the {method} run ended with exit status {status}, no results")
 
 
 def generic_report(bench) -> str:

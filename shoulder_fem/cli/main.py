@@ -139,6 +139,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="run both methods and write the comparison report")
     p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
     add_run_arguments(p)
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse the methods a stopped bench into --out finished (same scene, level, "
+        "parameters, solver, ranks and code)",
+    )
 
     add_mesh_parser(sub)
     return parser
@@ -154,6 +160,18 @@ def pin_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
+def _what_was_kept(args) -> str:
+    """The end of the message of a stopped command: what happened to its output."""
+    out = getattr(args, "out", None)
+    kept = getattr(args, "kept", None)
+    if out and kept:
+        return (
+            f": the finished {' and '.join(kept)} run kept in {out} "
+            "(bench --resume continues from it)"
+        )
+    return f": the unfinished output {out} was removed" if out else ""
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     pin_threads()
@@ -164,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
 
     matplotlib.use("Agg")  # figures are files; no display needed
     from shoulder_fem.cli import commands
+    from shoulder_fem.cli.bench import cmd_bench
     from shoulder_fem.cli.mesh import cmd_mesh
     from shoulder_fem.io.output import OutputError
     from shoulder_fem.scene import SceneError
@@ -180,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
             "scenes": commands.cmd_scenes,
             "run": commands.cmd_run,
             "compare": commands.cmd_compare,
-            "bench": commands.cmd_bench,
+            "bench": cmd_bench,
             "mesh": cmd_mesh,
         }[args.command](args)
     except (SceneError, OutputError, commands.InputFailure) as err:
@@ -190,12 +209,8 @@ def main(argv: list[str] | None = None) -> int:
         commands.error(str(err))
         return EXIT_SOLVER
     except _Terminated:
-        out = getattr(args, "out", None)
-        where = f": the unfinished output {out} was removed" if out else ""
-        commands.error(f"stopped by SIGTERM{where}")
+        commands.error(f"stopped by SIGTERM{_what_was_kept(args)}")
         return EXIT_TERMINATED
     except KeyboardInterrupt:
-        out = getattr(args, "out", None)
-        where = f": the unfinished output {out} was removed" if out else ""
-        commands.error(f"interrupted (Ctrl-C){where}")
+        commands.error(f"interrupted (Ctrl-C){_what_was_kept(args)}")
         return EXIT_INTERRUPTED

@@ -225,9 +225,10 @@ def _check_final(final: Path) -> str | None:
     return None
 
 
-#: The file at the top of every result folder: a run's summary, a bench's or compare's report,
-#: a mesh's statistics. A folder holding one may be replaced by a new result.
-RESULT_FILES = (SUMMARY_NAME, "report.json", "comparison.json", "mesh.json")
+#: The file at the top of every result folder: a run's summary, a bench's report or state (a
+#: stopped bench), compare's report, a mesh's statistics. A folder holding one may be replaced
+#: by a new result.
+RESULT_FILES = (SUMMARY_NAME, "report.json", "bench.json", "comparison.json", "mesh.json")
 
 
 def is_result(folder: Path) -> bool:

@@ -511,3 +511,32 @@ def test_a_stopped_bench_keeps_the_finished_run_and_resume_reuses_it(tmp_path):
         text=True,
     )
     assert again.returncode == 0 and "reusing" not in again.stdout, again.stdout
+
+
+def test_a_run_stopped_while_compiling_forms_leaves_the_cache_usable(tmp_path):
+    """SIGTERM while FFCx compiles a form into an empty cache: the claim it made (``X.c``
+    without ``X.c.cached``) is removed on the way out, so the next run compiles it anew
+    instead of waiting for it and dying with "JIT compilation timed out" (what happened)."""
+    cache = tmp_path / "forms"
+    (tmp_path / "dolfinx_jit_parameters.json").write_text(f'{{"cache_dir": "{cache}"}}')
+    cmd = [sys.executable, "-m", "shoulder_fem.cli", "-q", "run", "tied-block", "--method"]
+    cmd += ["coupled", "--level", "coarse", "--out", str(tmp_path / "out")]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(
+        cmd, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+
+    def claims():
+        return [c for c in cache.glob("*.c") if not c.with_suffix(".c.cached").exists()]
+
+    deadline = time.monotonic() + 120.0
+    while not claims():
+        assert proc.poll() is None and time.monotonic() < deadline, proc.returncode
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert claims() == [], claims()
+    again = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    assert (tmp_path / "out" / "summary.json").is_file()

@@ -16,6 +16,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 from shoulder_fem import __version__
@@ -160,6 +161,31 @@ def pin_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
+def remove_unfinished_forms(since: float) -> list[Path]:
+    """Remove the form-cache entries whose compilation this stopped process left unfinished.
+
+    FFCx claims a form by creating ``<module>.c`` and marks it done with ``<module>.c.cached``;
+    a process stopped in between leaves the claim, and every later run waits for it and dies
+    with "JIT compilation timed out" (measured). The claims without their mark made since
+    ``since`` (``time.time()``, this run's start) are removed, so the next run compiles anew.
+    """
+    try:
+        import dolfinx.jit
+    except ImportError:
+        return []
+    cache = Path(dolfinx.jit.get_parameters()["cache_dir"])
+    removed = []
+    for claim in cache.glob("*.c") if cache.is_dir() else ():
+        try:
+            unfinished = not claim.with_suffix(".c.cached").exists()
+            if unfinished and claim.stat().st_mtime >= since - 1.0:
+                claim.unlink()
+                removed.append(claim)
+        except OSError:
+            continue
+    return removed
+
+
 def _what_was_kept(args) -> str:
     """The end of the message of a stopped command: what happened to its output."""
     out = getattr(args, "out", None)
@@ -174,6 +200,7 @@ def _what_was_kept(args) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
+    started = time.time()
     pin_threads()
     args = build_parser().parse_args(argv)
     verbosity = 0 if args.quiet else args.verbose
@@ -209,8 +236,10 @@ def main(argv: list[str] | None = None) -> int:
         commands.error(str(err))
         return EXIT_SOLVER
     except _Terminated:
+        remove_unfinished_forms(started)
         commands.error(f"stopped by SIGTERM{_what_was_kept(args)}")
         return EXIT_TERMINATED
     except KeyboardInterrupt:
+        remove_unfinished_forms(started)
         commands.error(f"interrupted (Ctrl-C){_what_was_kept(args)}")
         return EXIT_INTERRUPTED

@@ -540,3 +540,23 @@ def test_a_run_stopped_while_compiling_forms_leaves_the_cache_usable(tmp_path):
     again = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
     assert (tmp_path / "out" / "summary.json").is_file()
+
+
+def test_mesh_warns_where_an_element_is_below_the_tests_quality(tmp_path):
+    """head_radius = 26 mm meshes at coarse with a sliver (mean-ratio quality 0.0155 measured,
+    the tests require 0.02): a warning with its place, the same place as mesh.json's
+    ``worst_at_m``; the scene's own head (24 mm) gives none."""
+    import json
+
+    base = ["-q", "mesh", "shoulder-internal-rotation", "--level", "coarse"]
+    with _log_records("shoulder_fem.cli.mesh") as records:
+        assert main([*base, "--set", "head_radius=26mm", "--out", str(tmp_path / "m26")]) == 0
+    quality = json.loads((tmp_path / "m26" / "mesh.json").read_text())["quality"]
+    place = ", ".join(f"{1e3 * v:.1f}" for v in quality["worst_at_m"])
+    warnings = [r.getMessage() for r in records if r.levelno == logging.WARNING]
+    assert quality["min"] < 0.02
+    expected = f"quality {quality['min']:.3g} < 0.02 (the bound the tests require) at ({place}) mm"
+    assert any(expected in w for w in warnings), warnings
+    with _log_records("shoulder_fem.cli.mesh") as records:
+        assert main([*base, "--variant", "rigid-bone", "--out", str(tmp_path / "m24")]) == 0
+    assert not [r for r in records if r.levelno >= logging.WARNING], records

@@ -251,7 +251,8 @@ def _plot_section(runs: dict[str, RunData], path: Path) -> dict[str, int]:
     coll = None
     for ax, (m, (polys, face, z)) in zip(axes[0], sections.items(), strict=True):
         r = runs[m]
-        ax.set_title(f"{m}: {fmt(r.von_mises_angle, 'g')}°, z = {z * 1e3:.1f} mm")
+        z_mm = round(z * 1e3, 1) + 0.0  # + 0.0: never "-0.0"
+        ax.set_title(f"{m}: {fmt(r.von_mises_angle, 'g')}°, z = {z_mm:.1f} mm")
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_aspect("equal")

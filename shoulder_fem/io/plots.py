@@ -27,6 +27,15 @@ def _label(summary: dict) -> str:
     return f"{summary.get('method')} ({summary.get('level')})"
 
 
+#: Units shown in a reader's scale: (unit shown, factor from SI).
+DISPLAY_UNITS = {"Pa": ("MPa", 1e-6), "m": ("mm", 1e3), "1": ("", 1.0)}
+
+
+def _display(unit: str) -> tuple[str, float]:
+    """(label unit, factor) of an SI unit on a plot axis: Pa as MPa, m as mm."""
+    return DISPLAY_UNITS.get(unit, (unit, 1.0))
+
+
 def plot_series(
     runs: list[dict],
     name: str,
@@ -36,15 +45,27 @@ def plot_series(
 ) -> Path:
     """Series ``name`` of several runs on one axis; optional analytic reference curve."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ser = runs[0]["series"][name]
+    (x_unit, fx), (y_unit, fy) = _display(ser["x_unit"]), _display(ser["y_unit"])
     for s in runs:
         ser = s["series"][name]
-        ax.plot(ser["x"], ser["y"], label=_label(s), **METHOD_STYLE.get(s.get("method"), {}))
+        x, y = fx * np.asarray(ser["x"], float), fy * np.asarray(ser["y"], float)
+        ax.plot(x, y, label=_label(s), **METHOD_STYLE.get(s.get("method"), {}))
     if reference is not None:
         x, y, label = reference
-        ax.plot(x, y, color="k", lw=0.8, ls=":", label=label)
+        ax.plot(
+            fx * np.asarray(x, float),
+            fy * np.asarray(y, float),
+            color="k",
+            lw=0.8,
+            ls=":",
+            label=label,
+        )
     ser = runs[0]["series"][name]
-    ax.set_xlabel(f"{'time' if ser['x_unit'] == 's' else 'x'} [{ser['x_unit']}]")
-    ax.set_ylabel(f"{name.replace('_', ' ')} [{ser['y_unit']}]")
+    x_name = "time" if ser["x_unit"] == "s" else ("position" if ser["x_unit"] == "m" else "x")
+    ax.set_xlabel(f"{x_name} [{x_unit}]" if x_unit else x_name)
+    ylabel = name.replace("_", " ")
+    ax.set_ylabel(f"{ylabel} [{y_unit}]" if y_unit else ylabel)
     ax.set_title(title or f"{runs[0].get('scene')}: {name.replace('_', ' ')}")
     ax.grid(alpha=0.3)
     ax.legend()

@@ -392,3 +392,25 @@ def test_every_group_present_at_finer_levels(geometry, level):
     e = x[cells[:, 1:]] - x[cells[:, :1]]
     assert np.all(np.linalg.det(e) != 0.0)
     assert len(np.unique(np.sign(np.linalg.det(e)))) == 1  # one orientation: none inverted
+
+
+def test_head_radius_accepts_the_range_its_doc_states():
+    """The scene's head_radius doc states the range the other defaults allow: 24 to 26.2 mm
+    (the hard bounds, 10-40 mm, are wider); 23.9 mm (insertion footprint on the cartilage) and
+    26.3 mm (= glenoid_radius) are refused, each with the parameter that stops it."""
+    from shoulder_fem.meshes import shoulder as S
+
+    scene = load_scene("shoulder-internal-rotation")
+    assert "only 24 to 26.2 mm are accepted" in scene.parameters["head_radius"].doc
+    for value, stop in (
+        ("24mm", None),
+        ("26.2mm", None),
+        ("23.9mm", "subscapularis_insertion"),
+        ("26.3mm", "glenoid_radius"),
+    ):
+        geometry = S.geometry_from_values(scene.with_overrides([f"head_radius={value}"]).values())
+        if stop is None:
+            geometry.validate()
+        else:
+            with pytest.raises(ValueError, match=stop):
+                geometry.validate()

@@ -560,3 +560,41 @@ def test_mesh_warns_where_an_element_is_below_the_tests_quality(tmp_path):
     with _log_records("shoulder_fem.cli.mesh") as records:
         assert main([*base, "--variant", "rigid-bone", "--out", str(tmp_path / "m24")]) == 0
     assert not [r for r in records if r.levelno >= logging.WARNING], records
+
+
+def _output_on_a_terminal(cmd: list[str], env: dict) -> str:
+    """What ``cmd`` writes when its standard streams are a (pseudo-)terminal."""
+    import pty
+
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(cmd, stdin=follower, stdout=follower, stderr=follower, env=env)
+    os.close(follower)
+    chunks = []
+    while True:
+        try:
+            chunk = os.read(leader, 65536)
+        except OSError:  # the terminal closed with the process
+            break
+        if not chunk:
+            break
+        chunks.append(chunk)
+    proc.wait(timeout=120)
+    os.close(leader)
+    assert proc.returncode == 0, b"".join(chunks).decode(errors="replace")
+    return b"".join(chunks).decode(errors="replace")
+
+
+def test_progress_with_the_time_left_on_a_terminal_only(tmp_path):
+    """A time-stepped run shows a bar with the time left on a terminal, and nothing of it when
+    its output goes to a file or pipe (a batch log), or with SHOULDER_FEM_PROGRESS=off."""
+    cmd = [sys.executable, "-m", "shoulder_fem.cli", "-q", "run", "spinning-bar", "--method"]
+    cmd += ["decoupled", "--level", "coarse", "--set", "end_time=0.02", "--out"]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    shown = _output_on_a_terminal([*cmd, str(tmp_path / "tty")], env)
+    assert "step 100%|" in shown and " left]" in shown, shown[-2000:]
+    piped = subprocess.run([*cmd, str(tmp_path / "pipe")], capture_output=True, text=True, env=env)
+    assert piped.returncode == 0 and "%|" not in piped.stderr + piped.stdout
+    off = _output_on_a_terminal(
+        [*cmd, str(tmp_path / "off")], dict(env, SHOULDER_FEM_PROGRESS="off")
+    )
+    assert "%|" not in off, off[-2000:]

@@ -28,6 +28,7 @@ import ufl
 from petsc4py import PETSc
 
 from shoulder_fem.engine.fem import JIT_PARAMS
+from shoulder_fem.engine.progress import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -403,10 +404,12 @@ def march(
     ``on_step(t)`` is called after each time of ``times`` is reached.
     """
     stats = stats or StepperStats()
-    for t0, t1 in zip(times[:-1], times[1:], strict=True):
-        _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, depth=0)
-        if on_step is not None:
-            on_step(t1)
+    with Progress(times[0], times[-1], "step", "") as progress:
+        for t0, t1 in zip(times[:-1], times[1:], strict=True):
+            _advance_with_cutback(t0, t1, advance, save, restore, max_cutbacks, stats, depth=0)
+            if on_step is not None:
+                on_step(t1)
+            progress.to(t1)
     return stats
 
 

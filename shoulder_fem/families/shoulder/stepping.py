@@ -25,6 +25,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import Contact
+from shoulder_fem.engine.progress import Progress
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
 from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.solver import ConvergenceError, StepperStats
@@ -148,6 +149,8 @@ class AngleStepper:
         self.tangent: PETSc.Vec | None = None
         #: The tangent of the converged state before, and the step from there (rad).
         self.previous: tuple[PETSc.Vec, float] | None = None
+        #: Called with the angle (deg) of every converged step (progress), or None.
+        self.on_angle: Callable[[float], None] | None = None
 
     def start(self) -> None:
         """Solve the unloaded state (the plate at rest), then control the plate by the angle."""
@@ -246,6 +249,8 @@ class AngleStepper:
         self.previous = None if self.tangent is None else (self.tangent, step)
         self.tangent = system.control_tangent()
         self.theta = target
+        if self.on_angle is not None:
+            self.on_angle(math.degrees(target))
         measured = self.measure(False).value
         self.log.steps += 1
         self.log.newton_iterations += its
@@ -315,6 +320,8 @@ def drive_rotation(
     """
     every = params.output_angle
     stepper = AngleStepper(system, contact, actuator, direction, measure, params, label)
+    progress = Progress(0.0, math.degrees(params.final_angle), f"{label} angle", "deg")
+    stepper.on_angle = progress.to
     try:
         stepper.start()
         on_output(0.0)
@@ -330,6 +337,7 @@ def drive_rotation(
                 on_output(goal)
         return stepper.theta, stepper.log, None
     finally:
+        progress.close()
         stepper.destroy()
 
 

@@ -102,6 +102,7 @@ def _surface_triangles(sm) -> tuple[list, list]:
 def _draw_views(fig, tris, body, lo, hi) -> None:
     """The three 3D views (top row): the whole model from two sides, and the joint (mm)."""
     import numpy as np
+    from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     from shoulder_fem.meshes import shoulder as sh
@@ -138,9 +139,10 @@ def _draw_views(fig, tris, body, lo, hi) -> None:
         ax.set_ylabel("y anterior (mm)", fontsize=8)
         ax.set_zlabel("z superior (mm)", fontsize=8)
         ax.tick_params(labelsize=7)
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=3))  # the short axis: labels overlapped
         ax.set_title(title, fontsize=10)
-        if k == 0:
-            ax.legend(loc="upper left", fontsize=7, bbox_to_anchor=(-0.1, 1.0))
+        if k == 0:  # beside the first view, not over it
+            ax.legend(loc="upper right", fontsize=7, bbox_to_anchor=(0.02, 1.0))
 
 
 def _draw_density_slices(fig, image, calibration, lo, hi) -> None:

@@ -15,7 +15,6 @@ import matplotlib.pyplot as plt
 import matplotlib.tri as mtri
 import numpy as np
 from matplotlib.collections import PolyCollection
-from matplotlib.ticker import MaxNLocator
 
 from shoulder_fem.families.shoulder.report.contents import (
     MPA,
@@ -105,20 +104,23 @@ def _glenoid_triangulation(xy: np.ndarray) -> mtri.Triangulation | None:
 def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
     angles = _map_angles(list(runs.values()))
     ncols = max(len(angles), 1)
-    vmax = 0.0
+    # one scale per angle, shared by both methods: a single scale over all angles left the
+    # low angles blank (0.002 against 0.5 MPa)
+    col_max = {a: 0.0 for a in angles}
     xy: dict[str, np.ndarray] = {}
     for m, r in runs.items():
-        p = r.arrays.get("glenoid_pressure")
-        if p is not None and p.size:
-            vmax = max(vmax, float(np.max(p)) * MPA)
+        for a in angles:
+            i = angle_index(r.angles, a)
+            p = r.arrays.get("glenoid_pressure")
+            if i is not None and p is not None and p.size:
+                col_max[a] = max(col_max[a], float(np.max(p[i])) * MPA)
         xy[m] = (
             glenoid_plane_coordinates(
                 r.arrays["glenoid_points"], r.arrays["glenoid_centre"], r.arrays["glenoid_axis"]
             )
             * 1e3
         )
-    vmax = vmax if vmax > 0 else 1.0
-    levels = MaxNLocator(nbins=20).tick_values(0.0, vmax)
+    levels = np.linspace(0.0, 100.0, 21)  # % of the angle's maximum
     cmap = plt.get_cmap("YlOrRd")
     all_xy = np.concatenate([v for v in xy.values() if len(v)] or [np.zeros((1, 2))])
     lo, hi = all_xy.min(axis=0), all_xy.max(axis=0)
@@ -140,8 +142,9 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
             ax.set_aspect("equal")
             ax.set_xlim(lo[0] - pad, hi[0] + pad)
             ax.set_ylim(lo[1] - pad, hi[1] + pad)
+            vmax = col_max[a] if col_max[a] > 0 else 1.0
             if row == 0:
-                ax.set_title(f"{a:g}°")
+                ax.set_title(f"{a:g}°\nmax {col_max[a]:.3g} MPa", fontsize=9)
             if col == 0:
                 ax.set_ylabel(f"{m}\nsuperior (mm)")
             if row == 1:
@@ -160,15 +163,16 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
                     fontsize=9,
                 )
                 continue
-            p = r.arrays["glenoid_pressure"][i] * MPA
+            p = 100.0 * np.clip(r.arrays["glenoid_pressure"][i] * MPA / vmax, 0.0, 1.0)
             if tri is not None:
-                mappable = ax.tricontourf(tri, np.clip(p, 0, vmax), levels=levels, cmap=cmap)
+                mappable = ax.tricontourf(tri, p, levels=levels, cmap=cmap)
             else:
                 mappable = ax.scatter(
-                    xy[m][:, 0], xy[m][:, 1], c=p, s=6, cmap=cmap, vmin=0, vmax=vmax
+                    xy[m][:, 0], xy[m][:, 1], c=p, s=6, cmap=cmap, vmin=0, vmax=100
                 )
     if mappable is not None:
-        fig.colorbar(mappable, ax=axes, shrink=0.85, label="contact pressure (MPa)")
+        label = "contact pressure (% of the angle's maximum, both methods)"
+        fig.colorbar(mappable, ax=axes, shrink=0.85, label=label)
     fig.suptitle("Glenoid contact pressure (view along the glenoid axis)")
     save_figure(fig, path)
 

@@ -94,25 +94,26 @@ def cmd_bench(args) -> int:
         say(f"bench --resume: no finished run of this request in {args.out}; running both")
     with OutputDir(args.out, comm) as out:
         runs = {}
+
+        def save_state(status: str) -> None:  # rank 0 writes OUT/bench.json
+            if comm.rank == 0:
+                state = {"status": status, "finished": list(runs), "request": request}
+                atomic_write_json(out.path / BENCH_NAME, state)
+
         try:
             for method in METHODS:
                 runs[method] = _method(args, scene, options, method, out.path, reuse, comm)
         except SolverFailure:  # keep the failed run's completed steps, and what finished
-            if comm.rank == 0:
-                state = {"status": "incomplete", "finished": list(runs), "request": request}
-                atomic_write_json(out.path / BENCH_NAME, state)
+            save_state("incomplete")
             out.commit()
             raise
         except BaseException:
             if runs and comm.size == 1:  # keep what finished (serial: no collective here)
-                state = {"status": "incomplete", "finished": list(runs), "request": request}
-                atomic_write_json(out.path / BENCH_NAME, state)
+                save_state("incomplete")
                 out.commit()
                 args.kept = sorted(runs)
             raise
-        if comm.rank == 0:
-            state = {"status": "complete", "finished": list(runs), "request": request}
-            atomic_write_json(out.path / BENCH_NAME, state)
+        save_state("complete")
         bench = BenchReport(scene, level, runs, out.path, comm)
         text = (fam.report or generic_report)(bench)
     for method, data in runs.items():

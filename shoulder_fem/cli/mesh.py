@@ -162,7 +162,7 @@ def _check_coverage(comm, mesh, image, source) -> None:
     from shoulder_fem.scene import SceneError
 
     n_owned = mesh.geometry.index_map().size_local
-    outside = dens.outside_fraction(image, mesh.geometry.x[:n_owned])
+    outside = dens.outside_image(image, mesh.geometry.x[:n_owned])
     counts = comm.allreduce(np.array([np.count_nonzero(outside), len(outside)]))
     fraction = counts[0] / max(counts[1], 1)
     if fraction > MAX_OUTSIDE:
@@ -170,7 +170,7 @@ def _check_coverage(comm, mesh, image, source) -> None:
         xyz = mesh.geometry.x[:n_owned]
         box = comm.allreduce(np.r_[xyz.min(axis=0), -xyz.max(axis=0)], op=MPI.MIN)
         raise SceneError(
-            f"--ct {source or 'phantom'}: {100 * fraction:.0f} % of the mesh's nodes lie outside "
+            f"--ct {source}: {100 * fraction:.0f} % of the mesh's nodes lie outside "
             f"the image (image from {_mm(lo)} to {_mm(hi)} mm, mesh from {_mm(box[:3])} to "
             f"{_mm(-box[3:])} mm): is it the model's scan, in the model's frame?"
         )
@@ -178,7 +178,7 @@ def _check_coverage(comm, mesh, image, source) -> None:
         logger.warning(
             "--ct %s: %.1f %% of the mesh's nodes lie outside the image (values "
             "clamped to its border)",
-            source or "phantom",
+            source,
             100 * fraction,
         )
 

@@ -213,10 +213,8 @@ def sample_trilinear(image: CTImage, points: np.ndarray) -> np.ndarray:
 
     Points outside the image take the value at the nearest point of the image (clamped).
     """
-    inv = np.linalg.inv(image.affine)
-    ijk = (np.c_[points, np.ones(len(points))] @ inv.T)[:, :3]
     shape = np.array(image.hu.shape)
-    ijk = np.clip(ijk, 0.0, shape - 1.0)
+    ijk = np.clip(_voxel_coordinates(image, points), 0.0, shape - 1.0)
     i0 = np.minimum(np.floor(ijk).astype(int), shape - 2)
     f = ijk - i0
     out = np.zeros(len(points))
@@ -228,10 +226,15 @@ def sample_trilinear(image: CTImage, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def outside_fraction(image: CTImage, points: np.ndarray) -> np.ndarray:
-    """Whether each of ``points`` (n, 3, m) lies outside the image's voxel grid (n,) bool."""
+def _voxel_coordinates(image: CTImage, points: np.ndarray) -> np.ndarray:
+    """Continuous voxel indices (i, j, k) of ``points`` (n, 3, m), (n, 3)."""
     inv = np.linalg.inv(image.affine)
-    ijk = (np.c_[points, np.ones(len(points))] @ inv.T)[:, :3]
+    return (np.c_[points, np.ones(len(points))] @ inv.T)[:, :3]
+
+
+def outside_image(image: CTImage, points: np.ndarray) -> np.ndarray:
+    """Whether each of ``points`` (n, 3, m) lies outside the image's voxel grid (n,) bool."""
+    ijk = _voxel_coordinates(image, points)
     shape = np.array(image.hu.shape)
     tol = 1e-9
     return np.any((ijk < -tol) | (ijk > shape - 1.0 + tol), axis=1)

@@ -41,7 +41,6 @@ __all__ = [
     "SegmentPairs",
     "segment_geometry",
     "segment_loads",
-    "segment_pair_forces",
     "segment_tangent_blocks",
 ]
 
@@ -171,7 +170,13 @@ def segment_loads(
     lam_f: np.ndarray,
     ns_nodes: int,
 ) -> np.ndarray:
-    """Residual contributions (N) of the pairs, (M, k, 3), at ``Y`` with the points ``geo``."""
+    """Residual contributions (N) of the pairs, (M, k, 3), at ``Y`` with the points ``geo``.
+
+    ``Y`` (M, k, 3): the slave facet's ``ns_nodes`` nodes, then the master nodes. With ``geo``
+    from :func:`segment_geometry` at ``Y``: the same cutting, rule, gaps and pressures as
+    :func:`~.points.segment_points` and :func:`~.evaluation.evaluate_pair` (frictionless),
+    restricted to each pair.
+    """
     R = np.zeros_like(Y)
     if geo is None:
         return R
@@ -190,23 +195,6 @@ def segment_loads(
     starts = np.r_[0, np.flatnonzero(np.diff(rr)) + 1]  # rr is sorted (fan_rule)
     R[rr[starts]] = np.add.reduceat(C, starts, axis=0)  # np.add.at is ten times slower
     return R
-
-
-def segment_pair_forces(
-    pair: ContactPair,
-    pp: SegmentPairs,
-    Y: np.ndarray,
-    lam_f: np.ndarray,
-    rule: tuple[np.ndarray, np.ndarray],
-    ns_nodes: int,
-) -> np.ndarray:
-    """Residual contributions (N) of the pairs, (M, k, 3), at their nodes' positions ``Y``.
-
-    ``Y`` (M, k, 3): the slave facet's ``ns_nodes`` nodes, then the master nodes. The same
-    cutting, rule, gaps and pressures as :func:`~.points.segment_points` and
-    :func:`~.evaluation.evaluate_pair` (frictionless), restricted to each pair.
-    """
-    return segment_loads(pair, segment_geometry(pp, Y, rule, ns_nodes), Y, lam_f, ns_nodes)
 
 
 def _perturbed(Ys: np.ndarray, nodes: np.ndarray) -> np.ndarray:

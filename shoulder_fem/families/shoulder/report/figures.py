@@ -109,9 +109,9 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
     col_max = {a: 0.0 for a in angles}
     xy: dict[str, np.ndarray] = {}
     for m, r in runs.items():
+        p = r.arrays.get("glenoid_pressure")
         for a in angles:
             i = angle_index(r.angles, a)
-            p = r.arrays.get("glenoid_pressure")
             if i is not None and p is not None and p.size:
                 col_max[a] = max(col_max[a], float(np.max(p[i])) * MPA)
         xy[m] = (

@@ -341,6 +341,74 @@ def test_segments_cut_in_chunks_are_the_same_points(monkeypatch):
 
 @pytest.mark.mpi
 @pytest.mark.parametrize("degree", [1, 2])
+def test_compiled_segment_kernel_equals_the_numpy_code(monkeypatch, degree):
+    """The compiled segment kernel (segments.c) against the numpy code it replaces, on a block
+    dragged 0.13 m over a non-matching mesh (P1 and P2; every cut shape: pieces inside a
+    master triangle and crossed by its edges): the same points (pairing, weights and shape
+    functions to 1e-11), and the same consistent tangent (both central differences of step
+    1e-8 m: to 1e-9 of its largest entry, their round-off is 1.6e-12)."""
+    from shoulder_fem.engine.contact import kernel
+
+    monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "c")
+    if kernel.load() is None:
+        pytest.fail("the segment kernel did not compile (see the warning)")
+    tb = TwoBlocks(
+        upper=(0.3, 0.3, 0.2),
+        lower=(1.6, 0.6, 0.3),
+        offset=(0.1, 0.15),
+        h_upper=0.06,
+        h_lower=0.1,
+        drag=True,
+        degree=degree,
+    )
+    tb.top_z.value = -2e-4
+    tb.solver.solve()
+    tb.top_x.value = 0.13
+    tb.solver.solve()
+    A = fem_petsc.create_matrix(dolfinx.fem.form(ufl.derivative(tb.F, tb.u)))
+    results = []
+    for choice in ("c", "numpy"):
+        monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", choice)
+        tb.contact.evaluate()
+        st = tb.contact.point_state(0)
+        K = tb.contact.jacobian_matrix(A)
+        results.append((dict(st), [a.copy() for a in K.getValuesCSR()]))
+        K.destroy()
+    (st_c, K_c), (st_n, K_n) = results
+    comm = MPI.COMM_WORLD
+    assert comm.allreduce(int(np.count_nonzero(st_c["active"])), op=MPI.SUM) > 20
+    for key in ("facet", "piece", "m_tri"):
+        assert np.array_equal(st_c[key], st_n[key])
+    for key in ("W", "N", "N1", "bary", "p"):
+        scale = comm.allreduce(float(np.abs(st_n[key]).max(initial=0.0)), op=MPI.MAX)
+        assert np.abs(st_c[key] - st_n[key]).max(initial=0.0) <= 1e-11 * scale, key
+    assert np.array_equal(K_c[0], K_n[0]) and np.array_equal(K_c[1], K_n[1])  # one pattern
+    scale = comm.allreduce(float(np.abs(K_n[2]).max(initial=0.0)), op=MPI.MAX)
+    assert scale > 0
+    assert np.abs(K_c[2] - K_n[2]).max(initial=0.0) <= 1e-9 * scale  # measured 1.6e-12
+
+
+def test_segment_kernel_without_a_compiler_falls_back_to_numpy(monkeypatch, tmp_path, caplog):
+    """A kernel that does not compile (here the compiler is ``false``) leaves the numpy code
+    running, after one warning that says why; a wrong selection is refused by name."""
+    from shoulder_fem.engine.contact import kernel
+
+    source = tmp_path / "segments.c"
+    source.write_text(kernel._SOURCE.read_text() + "\n/* a new digest: not in the cache */\n")
+    monkeypatch.setattr(kernel, "_SOURCE", source)
+    monkeypatch.setattr(kernel, "_loaded", {})
+    monkeypatch.setenv("CC", "false")
+    monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "c")
+    with caplog.at_level("WARNING", logger=kernel.__name__):
+        assert kernel.load() is None
+    assert "not available" in caplog.text and "false failed" in caplog.text
+    monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "fortran")
+    with pytest.raises(ValueError, match="SHOULDER_FEM_CONTACT_KERNEL = 'fortran'"):
+        kernel.load()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("degree", [1, 2])
 def test_patch_test_non_matching_meshes_and_action_reaction(degree):
     """Two blocks with non-matching interface meshes (P1 or P2) transmit a uniform pressure
     within 1 % (exact: p = E δ/(H + E/ε); the segment integration makes it exact to round-off);

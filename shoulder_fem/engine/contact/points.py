@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from shoulder_fem.engine.contact import kernel
 from shoulder_fem.engine.contact.geometry import (
     NODE_MU,
     barycentric_2d,
@@ -117,25 +118,29 @@ def segment_points(
     piece_id = np.tile(np.arange(npc), nf)
     j, t, ns = _facing_candidates(P, tri, pair.candidates)
     nn = sl.nodes.shape[1]
+    kern = kernel.load()
     parts = []
     for c in range(0, len(j), CUT_CHUNK):  # the cut's work arrays, a chunk of pairs at a time
         jc, tc = j[c : c + CUT_CHUNK], t[c : c + CUT_CHUNK]
-        s2, m2, poly, cnt = overlap_polygons(P[jc], ns[jc], tri[tc])
-        # fan triangles of each polygon, a degree-2 rule on each
-        rr, pts, W = fan_rule(poly, cnt, s2, seg_rule)
+        if kern is not None:
+            rr, lam_s, beta, W = kern.cut(P[jc], ns[jc], tri[tc], seg_rule)
+        else:
+            s2, m2, poly, cnt = overlap_polygons(P[jc], ns[jc], tri[tc])
+            # fan triangles of each polygon, the rule on each
+            rr, pts, W = fan_rule(poly, cnt, s2, seg_rule)
+            lam_s = barycentric_2d(pts, s2[rr])
+            beta = barycentric_2d(pts, m2[rr])  # on the master's own vertex order
         if len(rr) == 0:
             continue
         W = W * ref_area[jc[rr]]
-        lam_s = barycentric_2d(pts, s2[rr])
-        beta = barycentric_2d(pts, m2[rr])  # on the master's own vertex order
         pj = jc[rr]
         cols = pieces[piece_id[pj]]  # (npts, 3)
         N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[cols])
         if nn == 6:  # P2: the slave's own quadratic functions (consistent loads)
             N = p2_shape(N1)
         else:
-            N = np.zeros((len(pts), nn))
-            np.add.at(N, (np.arange(len(pts))[:, None], cols), lam_s)
+            N = np.zeros((len(rr), nn))
+            np.add.at(N, (np.arange(len(rr))[:, None], cols), lam_s)
         parts.append(
             dict(
                 facet=piece_facet[pj], piece=piece_id[pj], N=N, N1=N1, W=W, m_tri=tc[rr], bary=beta

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from shoulder_fem.engine.contact import kernel
 from shoulder_fem.engine.contact.geometry import (
     NODE_MU,
     barycentric_2d,
@@ -244,6 +245,14 @@ def segment_tangent_blocks(
     ns_nodes = sl.nodes.shape[1]
     Y = np.concatenate([x_nodes[sl.nodes[pp.facet]], m.x[pp.m_nodes]], axis=1)  # (M, k, 3)
     M, k = Y.shape[:2]
+    rows = np.concatenate([node_rows[sl.nodes[pp.facet]], m.rows[pp.m_nodes]], axis=1)
+    kern = kernel.load()
+    if kern is not None:
+        lam_f = lam[pp.facet]
+        blk = kern.tangent(
+            pair, Y, pp.cols, pp.m_vert, pp.tri_mu, pp.ref_area, lam_f, rule, ns_nodes, FD_STEP
+        )
+        return blk, rows
     cut, others = _moved_nodes(pp, k, ns_nodes)
     blk = np.empty((M, k, 3, k, 3))
     chunk = max(1, CHUNK_ROWS // (6 * cut.shape[1]))  # pairs per evaluation: bounds the memory
@@ -267,5 +276,4 @@ def segment_tangent_blocks(
             R = segment_loads(pair, geo, Yall, lam_s[src], ns_nodes).reshape(2, q, 3, mc, k, 3)
             D[r, nodes.T[:, None, :], np.arange(3)[None, :, None]] = (R[0] - R[1]) / (2 * FD_STEP)
         blk[s : s + chunk] = np.moveaxis(D, (1, 2), (3, 4))
-    rows = np.concatenate([node_rows[sl.nodes[pp.facet]], m.rows[pp.m_nodes]], axis=1)
     return blk, rows

@@ -1,0 +1,197 @@
+"""The compiled segment kernel (``segments.c``): the cut and the segment tangent, pair by pair.
+
+The numpy code of :mod:`~.points` and :mod:`~.segment_tangent` works every (slave piece,
+master triangle) pair, and every perturbed copy of one, as a row of its arrays; its temporaries
+cost more than the arithmetic (measured at ``paper``, part 1: the segment tangent 0.35 s and
+the cut 0.05 s per evaluation, 62 % of the run). ``segments.c`` does the same arithmetic one
+pair at a time. It is compiled with the system's C compiler (the one FFCx compiles the forms
+with) on first use, into dolfinx's form cache under a name that holds the source's digest, and
+loaded with cffi.
+
+``SHOULDER_FEM_CONTACT_KERNEL=numpy`` selects the numpy code (the reference the tests compare
+with); without a working compiler the numpy code runs, after one warning.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CFLAGS", "Kernel", "load"]
+
+log = logging.getLogger(__name__)
+
+#: Compiler flags (those of the hot forms, :data:`shoulder_fem.engine.fem.JIT_PARAMS`).
+CFLAGS = ("-O2", "-g0", "-fno-math-errno", "-fPIC", "-shared")
+_SOURCE = Path(__file__).with_name("segments.c")
+_CDEF = """
+long sf_cut(long M, const double *P, const double *ns, const double *T, int nq,
+            const double *mu, const double *w, long cap, long *rr, double *lam, double *beta,
+            double *W);
+void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const long *mv,
+                const double *tmu, const double *ref_area, const double *lam_f, int nq,
+                const double *mu, const double *w, int augmented, double penalty,
+                double smoothing, double depth, double h, double *blk);
+"""
+_loaded: dict[str, Kernel | None] = {}
+
+
+def _cache_dir() -> Path:
+    try:
+        import dolfinx.jit
+
+        return Path(dolfinx.jit.get_parameters()["cache_dir"]).expanduser()
+    except Exception:  # pragma: no cover - dolfinx is always there in this project
+        return Path(tempfile.gettempdir())
+
+
+def _build(source: Path) -> Path:
+    """The shared library of ``source``, compiled once per source digest and flags."""
+    code = source.read_bytes()
+    digest = hashlib.sha1(code + " ".join(CFLAGS).encode()).hexdigest()[:16]
+    cache = _cache_dir()
+    lib = cache / f"shoulder_fem_segments_{digest}.so"
+    if lib.exists():
+        return lib
+    cache.mkdir(parents=True, exist_ok=True)
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        raise OSError("no C compiler (cc or gcc) on the PATH")
+    fd, tmp = tempfile.mkstemp(prefix=lib.stem + ".", suffix=".tmp", dir=cache)
+    os.close(fd)
+    try:
+        run = subprocess.run(
+            [cc, *CFLAGS, str(source), "-o", tmp, "-lm"], capture_output=True, text=True
+        )
+        if run.returncode != 0:
+            raise OSError(f"{cc} failed on {source}: {run.stderr.strip()[:500]}")
+        os.replace(tmp, lib)  # atomic: a rank or a run compiling beside us writes the same file
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return lib
+
+
+def _ptr(ffi, ctype: str, a: np.ndarray):
+    return ffi.cast(ctype, a.ctypes.data)
+
+
+class Kernel:
+    """The loaded library (:func:`load`)."""
+
+    def __init__(self, path: Path):
+        import cffi
+
+        self.ffi = cffi.FFI()
+        self.ffi.cdef(_CDEF)
+        self.lib = self.ffi.dlopen(str(path))
+        self.path = path
+
+    def cut(self, P, ns, tri, rule):
+        """Points of the pieces ``P`` (M, 3, 3) on the triangles ``tri`` (M, 3, 3).
+
+        ``ns`` (M, 3): the pieces' unit normals; ``rule``: (mu, w) of the rule on a fan
+        triangle. Returns (rr, lam, beta, W): the pair of every point, its barycentric
+        coordinates on the piece and on the master triangle (its own vertex order), and its
+        weight as a fraction of the piece's area; as ``fan_rule`` and ``barycentric_2d`` on
+        ``overlap_polygons``.
+        """
+        ffi = self.ffi
+        P, ns, tri = (np.ascontiguousarray(a, dtype=np.float64) for a in (P, ns, tri))
+        mu = np.ascontiguousarray(rule[0], dtype=np.float64)
+        w = np.ascontiguousarray(rule[1], dtype=np.float64)
+        M = len(P)
+        cap = max(1024, 2 * len(w) * M // 3)
+        while True:
+            rr = np.empty(cap, dtype=np.int64)
+            lam, beta, W = np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap)
+            n = self.lib.sf_cut(
+                M,
+                _ptr(ffi, "double *", P),
+                _ptr(ffi, "double *", ns),
+                _ptr(ffi, "double *", tri),
+                len(w),
+                _ptr(ffi, "double *", mu),
+                _ptr(ffi, "double *", w),
+                cap,
+                _ptr(ffi, "long *", rr),
+                _ptr(ffi, "double *", lam),
+                _ptr(ffi, "double *", beta),
+                _ptr(ffi, "double *", W),
+            )
+            if n < 0:
+                raise ValueError(f"segment rule of {len(w)} points: at most 16 supported")
+            if n <= cap:
+                return rr[:n], lam[:n], beta[:n], W[:n]
+            cap = n
+
+    def tangent(self, pair, Y, cols, m_vert, tri_mu, ref_area, lam_f, rule, ns_nodes, h):
+        """Tangent blocks (M, k, 3, k, 3) of pairs at node positions ``Y`` (M, k, 3).
+
+        The arguments as :func:`~.segment_tangent.segment_tangent_blocks` holds them.
+        """
+        ffi = self.ffi
+        M, k = Y.shape[:2]
+        Y = np.ascontiguousarray(Y, dtype=np.float64)
+        cols = np.ascontiguousarray(cols, dtype=np.int64)
+        m_vert = np.ascontiguousarray(m_vert, dtype=np.int64)
+        ref_area = np.ascontiguousarray(ref_area, dtype=np.float64)
+        lam_f = np.ascontiguousarray(lam_f, dtype=np.float64)
+        mu = np.ascontiguousarray(rule[0], dtype=np.float64)
+        w = np.ascontiguousarray(rule[1], dtype=np.float64)
+        if tri_mu is None:
+            tmu = ffi.NULL
+        else:
+            tri_mu = np.ascontiguousarray(tri_mu, dtype=np.float64)
+            tmu = _ptr(ffi, "double *", tri_mu)
+        if len(w) > 16 or k > 12:
+            raise ValueError(f"segment tangent: {len(w)} rule points, {k} nodes per pair")
+        blk = np.empty((M, k, 3, k, 3))
+        self.lib.sf_tangent(
+            M,
+            ns_nodes,
+            k - ns_nodes,
+            _ptr(ffi, "double *", Y),
+            _ptr(ffi, "long *", cols),
+            _ptr(ffi, "long *", m_vert),
+            tmu,
+            _ptr(ffi, "double *", ref_area),
+            _ptr(ffi, "double *", lam_f),
+            len(w),
+            _ptr(ffi, "double *", mu),
+            _ptr(ffi, "double *", w),
+            int(pair.method == "augmented"),
+            float(pair.penalty),
+            float(pair.smoothing),
+            float(pair.search_depth),
+            float(h),
+            _ptr(ffi, "double *", blk),
+        )
+        return blk
+
+
+def load() -> Kernel | None:
+    """The compiled kernel, or None (numpy selected, or no compiler: warned once)."""
+    choice = os.environ.get("SHOULDER_FEM_CONTACT_KERNEL", "c").strip().lower()
+    if choice not in ("c", "numpy"):
+        raise ValueError(f"SHOULDER_FEM_CONTACT_KERNEL = {choice!r}: expected 'c' or 'numpy'")
+    if choice == "numpy":
+        return None
+    if "c" not in _loaded:
+        try:
+            _loaded["c"] = Kernel(_build(_SOURCE))
+        except (OSError, ImportError) as err:
+            log.warning(
+                "contact: the compiled segment kernel is not available (%s); "
+                "the numpy code runs instead (slower, the same results)",
+                err,
+            )
+            _loaded["c"] = None
+    return _loaded["c"]

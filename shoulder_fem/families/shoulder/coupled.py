@@ -75,7 +75,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         x = X_h + u.x.array.reshape(-1, 3)[humerus_dofs]
         return best_fit_rotation(X_h, x, comm)
 
-    stress_vm = VonMises(mesh, ct_, cauchy_stress(bone, u))
+    stress_vm = VonMises(mesh, ct_, cauchy_stress(bone, u), p.nodal_stress)
     probe = Probe(u, ct_, ft, contact, p)
     job = Stepping(
         system=system,

@@ -18,10 +18,10 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import Contact
+from shoulder_fem.engine.stress_recovery import NodalStress
 from shoulder_fem.families.shoulder.geometry import cap_angles, gather_rows
 from shoulder_fem.families.shoulder.interactions import muscle_forms
 from shoulder_fem.families.shoulder.model import ShoulderParameters
-from shoulder_fem.forms import materials
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["REPORTED_MUSCLES", "Probe", "VonMises", "cap_contact_angles"]
@@ -80,51 +80,35 @@ class Probe:
 
 
 class VonMises:
-    """Nodal von Mises stress (Pa) of the scapula (collective).
+    """Nodal stress and von Mises stress (Pa) of the scapula (collective).
 
-    Cell values at the vertices (DG1), volume-weighted average over the scapula cells around
-    each vertex.
+    Recovered by ``recipe`` (:class:`~shoulder_fem.engine.stress_recovery.NodalStress`):
+    ``"tensor"``, as Abaqus and CalculiX do (the stress tensor extrapolated from the
+    integration points to the vertices, averaged there over the scapula's cells, then von
+    Mises), or ``"scalar"``, the earlier recipe (each cell's von Mises at its vertices,
+    volume-weighted over the cells around a vertex).
     """
 
-    def __init__(self, mesh, cell_tags, stress: ufl.core.expr.Expr):
-        vm = materials.von_mises(stress)
-        self.D = dolfinx.fem.FunctionSpace(mesh, ("DG", 1))
-        self.P = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
-        self._expr = dolfinx.fem.Expression(vm, self.D.element.interpolation_points())
-        self._dg = dolfinx.fem.Function(self.D)
-        self.field = dolfinx.fem.Function(self.P, name="von_mises")
-        n_owned = mesh.topology.index_map(3).size_local
-        cells = cell_tags.find(S.SCAPULA.id)
-        self._cells = cells[cells < n_owned]
-        mesh.topology.create_connectivity(3, 3)
-        vol_form = dolfinx.fem.form(
-            ufl.TestFunction(dolfinx.fem.FunctionSpace(mesh, ("DG", 0))) * ufl.dx
-        )
-        self._vol = fem_petsc.assemble_vector(vol_form).array_r.copy()
-        self._num = dolfinx.fem.Function(self.P)
-        self._den = dolfinx.fem.Function(self.P)
-        p_dofs = np.array([self.P.dofmap.cell_dofs(c) for c in self._cells], dtype=np.int64)
-        d_dofs = np.array([self.D.dofmap.cell_dofs(c) for c in self._cells], dtype=np.int64)
-        self._p_dofs, self._d_dofs = p_dofs.reshape(-1, 4), d_dofs.reshape(-1, 4)
-        vol = np.repeat(self._vol[self._cells], 4).reshape(-1, 4)
-        np.add.at(self._den.x.array, self._p_dofs, vol)
-        self._den.x.scatter_reverse(dolfinx.la.ScatterMode.add)
-        self._den.x.scatter_forward()
-        owned = self.P.dofmap.index_map.size_local
-        self._nodes = np.unique(self._p_dofs)
-        self._nodes = self._nodes[self._nodes < owned]
+    def __init__(self, mesh, cell_tags, stress: ufl.core.expr.Expr, recipe: str = "tensor"):
+        self.recovery = NodalStress(mesh, cell_tags.find(S.SCAPULA.id), stress, recipe)
+        self.P = self.recovery.P
+        self.field = self.recovery.von_mises
+        self._p_dofs = self.recovery.cell_dofs
+        self._nodes = self.recovery.nodes
 
     def update(self) -> dolfinx.fem.Function:
         """Evaluate at the current state; returns the P1 field (0 off the scapula)."""
-        self._dg.interpolate(self._expr)
-        self._num.x.array[:] = 0.0
-        vals = self._dg.x.array[self._d_dofs] * self._vol[self._cells][:, None]
-        np.add.at(self._num.x.array, self._p_dofs, vals)
-        self._num.x.scatter_reverse(dolfinx.la.ScatterMode.add)
-        self._num.x.scatter_forward()
-        den = self._den.x.array
-        self.field.x.array[:] = np.where(den > 0, self._num.x.array / np.where(den > 0, den, 1), 0)
-        return self.field
+        return self.recovery.update()
+
+    def fields(self) -> tuple[dolfinx.fem.Function, ...]:
+        """The nodal fields for ParaView, at the last :meth:`update`.
+
+        ``von_mises`` and, with the tensor recipe, ``stress`` (9 components, Pa; zero off the
+        scapula).
+        """
+        if self.recovery.recipe == "tensor":
+            return (self.recovery.tensor, self.field)
+        return (self.field,)
 
     def nodal(self, comm: MPI.Comm) -> tuple[np.ndarray, np.ndarray]:
         """(points m, von Mises Pa) of the scapula vertices, gathered on every rank."""

@@ -66,6 +66,7 @@ class ShoulderParameters:
     scapula_modulus_factor: float
     humerus_modulus_factor: float
     rotation_duration: float
+    nodal_stress: str
 
     @classmethod
     def from_values(cls, values: dict) -> ShoulderParameters:

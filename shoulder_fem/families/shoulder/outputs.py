@@ -31,7 +31,8 @@ def record_von_mises(
 ) -> None:
     """Record the scapula's von Mises stress at output angle ``x`` (deg) (collective).
 
-    Its maximum as a series point, its nodal values in ``data`` (the last output's are saved).
+    Its maximum as a series point, its nodal values in ``data``: ``von_mises`` (points,
+    values) of the last output, and ``von_mises_series`` [(angle, values), ...] of every one.
     """
     field_vm = stress_vm.update()
     local = float(field_vm.x.array.max()) if len(field_vm.x.array) else 0.0
@@ -40,6 +41,7 @@ def record_von_mises(
     )
     data["von_mises"] = stress_vm.nodal(comm)
     data["von_mises_angle_deg"] = x
+    data.setdefault("von_mises_series", []).append((x, data["von_mises"][1]))
 
 
 def record_time_split(
@@ -96,6 +98,7 @@ def save_results(
     """
     comm = mesh.comm
     points, vm = data.get("von_mises", (np.zeros((0, 3)), np.zeros(0)))
+    series = data.get("von_mises_series", [])
     cell_points, cells = stress_vm.cells(comm)
     # the nodal values in the order of the cell points
     tree = cKDTree(points) if len(points) else None
@@ -114,6 +117,10 @@ def save_results(
         "scapula_cells": cells,
         "scapula_von_mises": np.asarray(vm)[order] if len(vm) else np.zeros(len(cell_points)),
         "von_mises_angle_deg": float(data.get("von_mises_angle_deg", math.nan)),
+        "von_mises_angles_deg": np.array([a for a, _ in series], dtype=float),
+        "scapula_von_mises_series": np.array(
+            [np.asarray(v)[order] for _, v in series], dtype=float
+        ).reshape(len(series), len(cell_points)),
         "section_z": float(section),
         "final_angle_deg": float(data["final_angle_deg"]),
     }

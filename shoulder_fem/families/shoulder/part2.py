@@ -245,7 +245,7 @@ class _Part2:
             contact=self.loads,
             linear_ties=True,
         )
-        self.stress_vm = VonMises(mesh, ct_, bone.stress(ufl.sym(ufl.grad(u))))
+        self.stress_vm = VonMises(mesh, ct_, bone.stress(ufl.sym(ufl.grad(u))), p.nodal_stress)
         self.angles = np.asarray(transfer.angles)
         self.times = self.angles / p.final_angle * p.rotation_duration
         self.T = np.asarray(transfer.translation)
@@ -307,7 +307,7 @@ class _Part2:
         )
         record_von_mises(rec, self.stress_vm, x, data, comm)
         self.u1.interpolate(self.u)
-        self.writer.write([self.u1], x)
+        self.writer.write([self.u1, *self.stress_vm.fields()], x)
         self.u_prev.x.array[:] = self.u.x.array
 
     def finish(self) -> None:

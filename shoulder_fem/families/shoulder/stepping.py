@@ -466,7 +466,7 @@ class AngleOutputs:
         if job.stress is not None:
             record_von_mises(self.recorder, job.stress, x, data, self.comm)
         self.u1.interpolate(job.u)
-        self.writer.write([self.u1], x)
+        self.writer.write([self.u1, *(job.stress.fields() if job.stress else ())], x)
         logger.info(
             "%s: output at %.0f deg (measured %.3f deg), max pressure %.3f MPa",
             job.label,

@@ -16,7 +16,8 @@ FIGURES = {
     "muscle_forces.png": "Muscle forces against the rotation angle (Fig. 3)",
     "section_von_mises.png": "Von Mises stress in the horizontal section of the scapula (Fig. 4)",
     "von_mises_scatter.png": "Nodal von Mises stress, decoupled against coupled (Fig. 5)",
-    "von_mises_error_histogram.png": "Histogram of the nodal von Mises differences",
+    "von_mises_error_histogram.png": "Histogram of the nodal von Mises differences (Fig. 5b)",
+    "von_mises_by_angle.png": "Nodal von Mises agreement at every output angle",
     "resources.png": "CPU time, peak memory and results disk per method and part",
 }
 """The figures :func:`write_report` writes, with their captions."""

@@ -8,7 +8,9 @@ A run folder of the ``shoulder`` scene family holds ``summary.json``
 * ``glenoid_points`` (n_g, 3) [m], ``glenoid_pressure`` and ``glenoid_shear`` (n_out, n_g) [Pa],
   ``glenoid_centre`` (3,) [m] and ``glenoid_axis`` (3,) (unit, out of the glenoid);
 * ``scapula_points`` (n_s, 3) [m], ``scapula_cells`` (n_c, 4) tetrahedra,
-  ``scapula_von_mises`` (n_s,) [Pa] at ``von_mises_angle_deg`` (the last output angle);
+  ``scapula_von_mises`` (n_s,) [Pa] at ``von_mises_angle_deg`` (the last output angle), and
+  ``scapula_von_mises_series`` (n_vm, n_s) [Pa] at every output angle ``von_mises_angles_deg``
+  (n_vm,) (absent in runs written before 2026-11-26);
 * ``section_z`` [m]: height of the horizontal section of the scapula through the contact.
 """
 

@@ -29,6 +29,10 @@ from shoulder_fem.families.shoulder.report.geometry import (
 )
 from shoulder_fem.io.plots import METHOD_STYLE, save_figure
 
+REL_ERROR_FLOOR = 0.05
+"""Relative von Mises errors are drawn for the vertices above this share of the coupled maximum
+(below it a small difference is a large share of a small stress)."""
+
 
 def write_figures(
     runs: dict[str, RunData],
@@ -62,6 +66,7 @@ def write_figures(
         out_dir / "von_mises_scatter.png",
         out_dir / "von_mises_error_histogram.png",
     )
+    _plot_von_mises_by_angle(metrics, out_dir / "von_mises_by_angle.png")
     _plot_resources(resources, out_dir / "resources.png")
     return n_polys
 
@@ -316,8 +321,12 @@ def _plot_von_mises(
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     save_figure(fig, scatter)
+    _plot_von_mises_histogram(c, d, angles, note, hist)
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+
+def _plot_von_mises_histogram(c: np.ndarray, d: np.ndarray, angles: str, note, hist: Path) -> None:
+    """The differences (MPa) and the paper's Fig. 5b (share of the nodes per relative error)."""
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11.0, 4.0))
     diff = d - c
     cmax = float(np.max(np.abs(c))) if len(c) else 0.0
     if len(diff):
@@ -337,11 +346,64 @@ def _plot_von_mises(
             "top", functions=(lambda x: 100.0 * x / cmax, lambda x: x * cmax / 100.0)
         )
         sec.set_xlabel("% of the coupled maximum")
-    ax.set_title(
+    ax.grid(alpha=0.3)
+    # the paper's Fig. 5b: the share of the nodes with a given relative error
+    loaded = np.abs(c) >= REL_ERROR_FLOOR * cmax if cmax > 0 else np.zeros(len(c), dtype=bool)
+    if np.any(loaded):
+        rel = 100.0 * diff[loaded] / c[loaded]
+        ax2.hist(
+            rel,
+            bins=60,
+            weights=np.full(len(rel), 100.0 / len(rel)),
+            color="C2",
+            alpha=0.8,
+            label=f"mean {rel.mean():+.2f} %, std {rel.std():.2f} %",
+        )
+        ax2.legend(fontsize=8)
+    ax2.axvline(0.0, color="k", lw=0.8)
+    ax2.set_xlabel("relative error, (decoupled − coupled) / coupled (%)")
+    ax2.set_ylabel("% of the vertices")
+    ax2.set_title(
+        f"{int(np.sum(loaded))} vertices above {100 * REL_ERROR_FLOOR:g} % of the coupled maximum",
+        fontsize=9,
+    )
+    ax2.grid(alpha=0.3)
+    fig.suptitle(
         f"Nodal von Mises differences ({angles})" + (f"\n{note}" if note else ""), fontsize=9
     )
-    ax.grid(alpha=0.3)
+    fig.tight_layout()
     save_figure(fig, hist)
+
+
+def _plot_von_mises_by_angle(metrics: dict[str, Any], path: Path) -> None:
+    """Slope and largest difference of the nodal von Mises stress against the angle."""
+    rows = metrics.get("von_mises_per_angle") or []
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10.0, 3.8))
+    for key, label, colour in (
+        ("scapula", "whole scapula", "C0"),
+        ("glenoid_region", "glenoid region", "C3"),
+    ):
+        a = [r["angle_deg"] for r in rows]
+        slope = [r[key]["slope"] if r[key]["slope"] is not None else np.nan for r in rows]
+        err = [
+            100 * r[key]["max_error_of_max"] if r[key]["max_error_of_max"] is not None else np.nan
+            for r in rows
+        ]
+        ax.plot(a, slope, "o-", color=colour, label=label)
+        ax2.plot(a, err, "o-", color=colour, label=label)
+    ax.axhspan(0.98, 1.02, color="0.9", label="paper's criterion 0.98-1.02")
+    ax.set_xlabel("internal rotation (deg)")
+    ax.set_ylabel("von Mises slope, decoupled / coupled")
+    ax2.set_xlabel("internal rotation (deg)")
+    ax2.set_ylabel("largest difference (% of the region's max)")
+    for axis in (ax, ax2):
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    if not rows:
+        ax.set_title("no von Mises series in these runs", fontsize=9)
+    fig.suptitle("Nodal von Mises stress at every output angle, decoupled against coupled")
+    fig.tight_layout()
+    save_figure(fig, path)
 
 
 def _plot_resources(table: dict[str, dict[str, Any]], path: Path) -> None:

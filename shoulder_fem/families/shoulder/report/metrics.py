@@ -32,6 +32,9 @@ MIN_MATCHED_FRACTION = 0.99
 CONTACT_THRESHOLD = 0.01
 """A glenoid point is in contact if its pressure exceeds this fraction of the coupled maximum."""
 
+GLENOID_REGION = 0.02
+"""Radius (m) about the glenoid's centre of the scapula's glenoid region (its vertices)."""
+
 MUSCLES = ("infraspinatus", "subscapularis")
 """Muscles whose forces are compared (Fig. 3); the supraspinatus is drawn too."""
 
@@ -98,17 +101,70 @@ def _von_mises_metrics(cpl: RunData, dec: RunData, pair: tuple) -> dict[str, Any
         return result
     c = np.asarray(cpl.arrays["scapula_von_mises"], dtype=float)[i_c]
     d = np.asarray(dec.arrays["scapula_von_mises"], dtype=float)[i_d]
+    stats = von_mises_stats(c, d)
+    for key in ("correlation", "slope", "max_abs_error_mpa", "rms_error_mpa", "coupled_max_mpa"):
+        result[f"von_mises_{key}"] = stats[key]
+    result["von_mises_max_rel_error"] = stats["max_error_of_max"]
+    return result
+
+
+def von_mises_stats(c: np.ndarray, d: np.ndarray) -> dict[str, float | None]:
+    """Agreement of matched nodal von Mises stresses ``d`` (decoupled) with ``c`` (Pa).
+
+    ``correlation`` r, ``slope`` of the least-squares line through the origin, the largest and
+    rms difference (MPa), the largest difference over the largest ``c`` (``max_error_of_max``),
+    and ``nodes``.
+    """
+    out: dict[str, float | None] = dict.fromkeys(
+        ("correlation", "slope", "max_abs_error_mpa", "rms_error_mpa", "max_error_of_max")
+    )
+    out["nodes"] = len(c)
+    out["coupled_max_mpa"] = None
+    if not len(c):
+        return out
     diff = d - c
     cmax = float(np.max(np.abs(c)))
     cc = float(np.dot(c, c))
     if len(c) > 1 and np.std(c) > 0 and np.std(d) > 0:
-        result["von_mises_correlation"] = float(np.corrcoef(c, d)[0, 1])
-    result["von_mises_slope"] = float(np.dot(c, d) / cc) if cc > 0 else None
-    result["von_mises_max_abs_error_mpa"] = float(np.max(np.abs(diff))) * MPA
-    result["von_mises_rms_error_mpa"] = float(np.sqrt(np.mean(diff**2))) * MPA
-    result["von_mises_max_rel_error"] = float(np.max(np.abs(diff))) / cmax if cmax > 0 else None
-    result["von_mises_coupled_max_mpa"] = cmax * MPA
-    return result
+        out["correlation"] = float(np.corrcoef(c, d)[0, 1])
+    out["slope"] = float(np.dot(c, d) / cc) if cc > 0 else None
+    out["max_abs_error_mpa"] = float(np.max(np.abs(diff))) * MPA
+    out["rms_error_mpa"] = float(np.sqrt(np.mean(diff**2))) * MPA
+    out["max_error_of_max"] = float(np.max(np.abs(diff))) / cmax if cmax > 0 else None
+    out["coupled_max_mpa"] = cmax * MPA
+    return out
+
+
+def von_mises_by_angle(cpl: RunData, dec: RunData, pair: tuple) -> list[dict[str, Any]]:
+    """:func:`von_mises_stats` at every output angle both runs recorded.
+
+    Over the whole scapula and over its glenoid region (vertices within
+    :data:`GLENOID_REGION` of the glenoid's centre, in the reference geometry). Empty for runs
+    without the series.
+    """
+    i_c, i_d = pair
+    if "scapula_von_mises_series" not in cpl.arrays or "scapula_von_mises_series" not in dec.arrays:
+        return []
+    a_c = np.asarray(cpl.arrays["von_mises_angles_deg"], dtype=float)
+    a_d = np.asarray(dec.arrays["von_mises_angles_deg"], dtype=float)
+    X = np.asarray(cpl.arrays["scapula_points"], dtype=float)[i_c]
+    centre = np.asarray(cpl.arrays["glenoid_centre"], dtype=float)
+    near = np.linalg.norm(X - centre, axis=1) <= GLENOID_REGION
+    out = []
+    for k, a in enumerate(a_c):
+        j = angle_index(a_d, a)
+        if j is None:
+            continue
+        c = np.asarray(cpl.arrays["scapula_von_mises_series"][k], dtype=float)[i_c]
+        d = np.asarray(dec.arrays["scapula_von_mises_series"][j], dtype=float)[i_d]
+        out.append(
+            {
+                "angle_deg": float(a),
+                "scapula": von_mises_stats(c, d),
+                "glenoid_region": von_mises_stats(c[near], d[near]),
+            }
+        )
+    return out
 
 
 def _stage(summary: dict, name: str) -> dict | None:
@@ -274,6 +330,8 @@ def compare_runs(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
         ),
     }
     out.update(_von_mises_metrics(cpl, dec, s_pair[:2]))
+    out["von_mises_per_angle"] = von_mises_by_angle(cpl, dec, s_pair[:2])
+    out["glenoid_region_radius_mm"] = GLENOID_REGION * 1e3
     out["per_angle"] = per_angle
     return out, s_pair[:2]
 

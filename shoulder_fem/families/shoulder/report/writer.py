@@ -79,6 +79,14 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
 
     fa = {m: r.final_angle for m, r in runs.items()}
     notes = _notes(runs, fa, metrics)
+    recipes = {
+        m: r.summary.get("parameters", {}).get("nodal_stress", "scalar") for m, r in runs.items()
+    }
+    if recipes["coupled"] != recipes["decoupled"]:
+        notes.append(
+            f"the nodal stresses are recovered differently (coupled: {recipes['coupled']}, "
+            f"decoupled: {recipes['decoupled']}): their von Mises comparison is not like with like"
+        )
     resources = resource_table(cpl, dec)
     n_polys = write_figures(runs, metrics, pair, resources, out_dir)
 
@@ -89,6 +97,7 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
         "status": {m: r.summary.get("status") for m, r in runs.items()},
         "messages": {m: r.summary.get("message") for m, r in runs.items()},
         "final_angle_deg": fa,
+        "nodal_stress": recipes["coupled"],
         **{k: v for k, v in metrics.items() if k != "per_angle"},
         "section_z_m": {m: float(r.arrays.get("section_z", math.nan)) for m, r in runs.items()},
         "section_polygons": n_polys,

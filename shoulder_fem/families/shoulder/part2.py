@@ -186,11 +186,14 @@ def _suspension(
 ) -> tuple[list[RigidBody], list[Tie], list[Spring], list[Spring]]:
     """The scapula's springs, each on a rigid plate tied to its patch (collective).
 
-    The springs linearised about the recorded pose: their force there (floating-frame
-    components) is applied to their plate, their stiffness is that of the reference pose
-    (the ground end fixed in the floating frame). The floating-frame displacements are
-    microns, so the change of the springs' directions over them is negligible, and the
-    stiffness -- hence the factorization -- is the same at every angle.
+    What part 2 does with a spring: its force at the recorded pose (the rigid scapula of part
+    1; floating-frame components) is a given force on its plate, and the plate's motion in the
+    floating frame adds the exact response of a spring of the same stiffness that has no force
+    at the reference pose (its ground end fixed in the floating frame). The recorded tension's
+    own geometric stiffness N/l (the turning of a loaded spring) is left out: its size against
+    k is the series ``part2_spring_geometric_stiffness_ratio``, and the plates' motion the
+    series ``part2_spring_plate_displacement`` (README). The Jacobian is that of the reference
+    pose (chord iterations), so one factorization serves every angle.
 
     Returns:
         (plates, ties, springs on the plates, the same springs on the rigid scapula).
@@ -268,11 +271,16 @@ class _Part2:
         centre = ref + tk
         fs, ms = f.sum(axis=0), np.cross(points - ref, f @ Rk).sum(axis=0)
         ms = Rk @ ms
+        self.geometric_ratio = 0.0
         for body, sp in zip(self.bodies, self.world, strict=True):
             pa = centre + Rk @ (np.asarray(sp.point_a) - ref)
-            g = spring_response(sp, pa, np.asarray(sp.point_b)).gradient
+            response = spring_response(sp, pa, np.asarray(sp.point_b))
+            g = response.gradient
             body.force = -Rk.T @ g
             fs, ms = fs - g, ms + np.cross(pa - centre, -g)
+            # the recorded tension's geometric stiffness N/l, left out of part 2, against k
+            ratio = abs(response.tension) / response.length / sp.stiffness
+            self.geometric_ratio = max(self.geometric_ratio, ratio)
         return fs, ms
 
     def step(self, k: int, target: float, data: dict) -> None:
@@ -294,6 +302,11 @@ class _Part2:
         resid = max(float(np.linalg.norm(fs)) / scale, float(np.linalg.norm(ms)) / (scale * lever))
         self.worst = max(self.worst, resid)
         rec.add_series_point("transfer_equilibrium_residual", x, resid, "deg", "1")
+        rec.add_series_point(
+            "part2_spring_geometric_stiffness_ratio", x, self.geometric_ratio, "deg", "1"
+        )
+        plate = max(float(np.linalg.norm(b.translation)) for b in self.bodies)
+        rec.add_series_point("part2_spring_plate_displacement", x, plate, "deg", "m")
         coriolis = inertia.coriolis()
         rec.add_series_point(
             "part2_inertia_force", x, float(np.linalg.norm(resultant[:3])), "deg", "N"

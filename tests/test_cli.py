@@ -44,6 +44,17 @@ def _leftovers(folder: Path) -> list[str]:
             ["run", "spinning-bar", "--method", "coupled", "--set", "outer_radius=10mm"],
             "with override(s) outer_radius: outer_radius = 0.01 m must exceed",
         ),
+        (
+            [
+                "run",
+                "shoulder-internal-rotation",
+                "--method",
+                "decoupled",
+                "--set",
+                "humeral_cartilage_angle=78deg",
+            ],
+            "the insertion footprint runs off the tuberosity onto the articular cartilage",
+        ),
         (["bench", "hertz"], "scene 'hertz' has no decoupled method (it has: coupled)"),
         (["run", "hertz", "--method", "decoupled"], "scene 'hertz' has no decoupled method"),
         (
@@ -476,6 +487,21 @@ def test_a_bench_or_compare_result_is_replaced_by_a_rerun(tmp_path):
     (foreign / "notes.txt").write_text("mine")
     assert main([*args, "--out", str(foreign)]) == EXIT_INPUT
     assert (foreign / "notes.txt").read_text() == "mine"
+
+
+def test_a_bench_whose_geometry_is_refused_leaves_nothing(tmp_path):
+    """A bench whose first run refuses the geometry (a cartilage cap over the insertion
+    footprint) says so in the run's one line and the bench's, exits as bad input (2) and keeps
+    no folder (there is nothing to resume)."""
+    out = tmp_path / "bench"
+    cmd = [sys.executable, "-m", "shoulder_fem.cli", "-q", "bench", "shoulder-internal-rotation"]
+    cmd += ["--set", "humeral_cartilage_angle=78deg", "--out", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 2 and "onto the articular cartilage" in lines[0], lines
+    assert "refused its input" in lines[1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_a_stopped_bench_keeps_the_finished_run_and_resume_reuses_it(tmp_path):

@@ -19,6 +19,9 @@ from pathlib import Path
 
 from shoulder_fem.cli.commands import SolverFailure, generic_report, prepare, say
 
+#: Exit status of a ``run`` that refused its input (``main.EXIT_INPUT``).
+INPUT_REFUSED = 2
+
 #: What ``OUT/bench.json`` is called (also a result file: a rerun may replace the folder).
 BENCH_NAME = "bench.json"
 
@@ -104,9 +107,10 @@ def cmd_bench(args) -> int:
             for method in METHODS:
                 runs[method] = _method(args, scene, options, method, out.path, reuse, comm)
         except SolverFailure:  # keep the failed run's completed steps, and what finished
-            save_state("incomplete")
-            out.commit()
-            raise
+            if runs or any((out.path / m).exists() for m in METHODS):
+                save_state("incomplete")
+                out.commit()
+            raise  # nothing finished nor begun (e.g. the mesh failed): nothing is kept
         except BaseException:
             if runs and comm.size == 1:  # keep what finished (serial: no collective here)
                 save_state("incomplete")
@@ -177,4 +181,8 @@ def _run_apart(args, method: str, folder: Path) -> dict:
         if status == 0:
             return result.data
         raise RunFailed(f"{method}: {result.data.get('message')}", result)
+    if status == INPUT_REFUSED:  # the child printed which input and why
+        from shoulder_fem.scene import SceneError
+
+        raise SceneError(f"bench: the {method} run refused its input (above); nothing was run")
     raise SolverFailure(f"bench: the {method} run ended with exit status {status}, no results")

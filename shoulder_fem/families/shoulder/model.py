@@ -19,7 +19,7 @@ from mpi4py import MPI
 from shoulder_fem.families.shoulder.geometry import glenoid_frame, humeral_cap
 from shoulder_fem.io import ct
 from shoulder_fem.meshes import shoulder as S
-from shoulder_fem.scene import Scene
+from shoulder_fem.scene import Scene, SceneError
 
 __all__ = [
     "DETACHED",
@@ -115,9 +115,12 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     variants = ("deformable",) if method == "coupled" else ("rigid-bone", "scapula")
     # the subscapularis origin is the actuator: cut it free of the scapula
     wrap = params.humeral_head_contact
-    meshes = S.build_shoulder_mesh(
-        comm, geometry, sizes, variants, detach=DETACHED, head_layer=wrap
-    )
+    try:
+        meshes = S.build_shoulder_mesh(
+            comm, geometry, sizes, variants, detach=DETACHED, head_layer=wrap
+        )
+    except ValueError as err:  # a geometry the builder refuses: say which scene and why
+        raise SceneError(f"{scene.source}: {err}") from None
     lay = S.layout(geometry)
     s_dir = lay.rot @ S.shaft_axis(geometry)[0]
     axis = -s_dir / np.linalg.norm(s_dir)

@@ -43,6 +43,7 @@ UNITS: dict[str, tuple[str, float]] = {
     "GPa": ("Pa", 1e9),
     "kg/m^3": ("kg/m^3", 1.0),
     "g/cm^3": ("kg/m^3", 1e3),
+    "kg/m^3/HU": ("kg/m^3/HU", 1.0),
     "s": ("s", 1.0),
     "ms": ("s", 1e-3),
     "rad/s": ("rad/s", 1.0),
@@ -97,7 +98,9 @@ class Parameter:
     def checked(self, value, where: str) -> Parameter:
         """Return a copy holding ``value`` (SI) after checking its type and bounds."""
         if isinstance(self.value, str):
-            if value not in self.choices:
+            if not isinstance(value, str):
+                raise SceneError(f"{where}: {self.name} = {value!r}: expected text")
+            if self.choices and value not in self.choices:
                 raise SceneError(
                     f"{where}: {self.name} = {value!r}: expected one of {', '.join(self.choices)}"
                 )
@@ -128,6 +131,8 @@ class Parameter:
         """(value, bounds) as a reader sets them: in the scene file's unit, e.g. ``60 deg``."""
         if self.choices:
             return str(self.value), "one of " + ", ".join(self.choices)
+        if isinstance(self.value, str):  # free text (a path)
+            return repr(self.value), "text"
         if isinstance(self.value, bool) or not isinstance(self.value, float):
             return str(self.value).lower(), _bounds_text(self.bounds, 1.0, "")
         unit = self.file_unit or self.unit
@@ -320,9 +325,9 @@ def _parameter_from_spec(name: str, spec, source: str) -> Parameter:
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
     if isinstance(value, str):
-        choices = spec.get("choices")
-        if not choices or not all(isinstance(c, str) for c in choices):
-            raise SceneError(f"{where}: a text value needs 'choices', a list of strings")
+        choices = spec.get("choices", [])  # none: free text (e.g. a path)
+        if not isinstance(choices, list) or not all(isinstance(c, str) for c in choices):
+            raise SceneError(f"{where}: 'choices' of a text value must be a list of strings")
         proto = Parameter(name, value, "", "", {}, spec.get("doc", ""), tuple(choices))
         return proto.checked(value, where)
     if isinstance(value, bool) or (isinstance(value, int) and "unit" not in spec):

@@ -73,7 +73,13 @@ def cmd_mesh(args) -> int:
     comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
     scene, level, sizes, geometry = _shoulder_scene(args)
-    calibration = dens.Calibration()
+    values = scene.values()
+    calibration = dens.Calibration(
+        values.get("ct_density_intercept", dens.Calibration.intercept),
+        values.get("ct_density_slope", dens.Calibration.slope),
+    )
+    if args.ct is None and values.get("ct_image"):
+        args.ct = Path(values["ct_image"])
     if args.ct is not None:
         try:
             image = dens.read_ct(args.ct)
@@ -148,32 +154,16 @@ def _shoulder_scene(args):
     return scene, level, sizes, geometry
 
 
-#: A CT image whose voxel grid misses more than this fraction of the mesh's nodes is refused
-#: (their values would be the clamped border's, not the bone's).
-MAX_OUTSIDE = 0.5
-
-
 def _check_coverage(comm, mesh, image, source) -> None:
     """Refuse a CT image that misses the model (collective; the same error on every rank)."""
-    import numpy as np
-    from mpi4py import MPI
-
     from shoulder_fem.io import ct as dens
     from shoulder_fem.scene import SceneError
 
     n_owned = mesh.geometry.index_map().size_local
-    outside = dens.outside_image(image, mesh.geometry.x[:n_owned])
-    counts = comm.allreduce(np.array([np.count_nonzero(outside), len(outside)]))
-    fraction = counts[0] / max(counts[1], 1)
-    if fraction > MAX_OUTSIDE:
-        lo, hi = dens.image_box(image)
-        xyz = mesh.geometry.x[:n_owned]
-        box = comm.allreduce(np.r_[xyz.min(axis=0), -xyz.max(axis=0)], op=MPI.MIN)
-        raise SceneError(
-            f"--ct {source}: {100 * fraction:.0f} % of the mesh's nodes lie outside "
-            f"the image (image from {_mm(lo)} to {_mm(hi)} mm, mesh from {_mm(box[:3])} to "
-            f"{_mm(-box[3:])} mm): is it the model's scan, in the model's frame?"
-        )
+    try:
+        fraction = dens.check_coverage(image, mesh.geometry.x[:n_owned], comm, f"--ct {source}")
+    except ValueError as err:
+        raise SceneError(str(err)) from None
     if fraction > 0 and comm.rank == 0:
         logger.warning(
             "--ct %s: %.1f %% of the mesh's nodes lie outside the image (values "
@@ -185,18 +175,11 @@ def _check_coverage(comm, mesh, image, source) -> None:
 
 def _check_uniform(comm, rho, source) -> None:
     """Warn when the density sampled at the nodes is the same everywhere (collective)."""
-    import numpy as np
-    from mpi4py import MPI
+    from shoulder_fem.io import ct as dens
 
-    local = rho.x.array
-    lo = comm.allreduce(float(local.min()) if len(local) else np.inf, op=MPI.MIN)
-    hi = comm.allreduce(float(local.max()) if len(local) else -np.inf, op=MPI.MAX)
+    lo, hi = dens.density_range(rho, comm)
     if hi - lo <= 1e-9 * max(abs(hi), 1.0) and comm.rank == 0:
         logger.warning("--ct %s: the density is uniform (%.6g kg/m^3) over the mesh", source, hi)
-
-
-def _mm(xyz) -> str:
-    return "(" + ", ".join(f"{1e3 * v:.0f}" for v in xyz) + ")"
 
 
 def _summary(args, scene, level: str, sizes: dict, stats: dict, calibration) -> dict:

@@ -243,7 +243,7 @@ def bone_fields(
     the bones, so that it is exact on each bone's cells whatever the partition (a node-wise
     factor would need the bone's cells on the node's owner).
     """
-    rho, E = ct.nodal_modulus(mesh, image)
+    rho, E = ct.nodal_modulus(mesh, image, params.calibration())
     factor = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)), name="modulus_factor")
     factor.x.array[:] = 1.0
     for body, value in modulus_factors(params).items():

@@ -67,6 +67,9 @@ class ShoulderParameters:
     humerus_modulus_factor: float
     rotation_duration: float
     nodal_stress: str
+    ct_image: str
+    ct_density_intercept: float
+    ct_density_slope: float
 
     @classmethod
     def from_values(cls, values: dict) -> ShoulderParameters:
@@ -84,6 +87,10 @@ class ShoulderParameters:
     def humeral_head_contact(self) -> bool:
         """Whether the rotator cuff slides on the humeral head (``muscle_contact``)."""
         return self.muscle_contact == "humeral-head"
+
+    def calibration(self) -> ct.Calibration:
+        """The HU calibration of the bones' density (``ct_density_*``)."""
+        return ct.Calibration(self.ct_density_intercept, self.ct_density_slope)
 
     def quadrature(self) -> dict:
         """Form-compiler parameters of the volume forms (``quadrature_degree``)."""
@@ -124,7 +131,7 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     lay = S.layout(geometry)
     s_dir = lay.rot @ S.shaft_axis(geometry)[0]
     axis = -s_dir / np.linalg.norm(s_dir)
-    image = ct.shoulder_phantom(geometry)
+    image = _image(scene, params, geometry)
     model = ShoulderModel(
         scene=scene,
         level=level,
@@ -137,9 +144,55 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
         image=image,
     )
     first = meshes["deformable" if method == "coupled" else "rigid-bone"]
+    if params.ct_image:
+        _check_image(scene, params, image, meshes)
     model.info["glenoid_frame"] = glenoid_frame(first.mesh, first.facet_tags)
     model.info["humeral_cap"] = humeral_cap(first.mesh, first.facet_tags)
     return model
+
+
+def _image(scene: Scene, params: ShoulderParameters, geometry) -> ct.CTImage:
+    """The CT image of the bones: the scene's ``ct_image``, or the phantom of the geometry."""
+    if not params.ct_image:
+        return ct.shoulder_phantom(geometry, calibration=params.calibration())
+    try:
+        return ct.read_ct(params.ct_image)
+    except (OSError, ValueError) as err:
+        raise SceneError(f"{scene.where('ct_image')}: {err}") from None
+
+
+def _check_image(scene: Scene, params, image: ct.CTImage, meshes: dict) -> None:
+    """Refuse a scan that misses the bones; warn when part of them, or a uniform density."""
+    import logging
+
+    log = logging.getLogger(__name__)
+    for variant, sm in meshes.items():
+        comm = sm.mesh.comm
+        bone = np.concatenate([sm.cell_tags.find(S.MARKERS[b].id) for b in ("humerus", "scapula")])
+        n_owned = sm.mesh.geometry.index_map().size_local
+        cells = sm.mesh.geometry.dofmap.array.reshape(-1, 4)  # straight tetrahedra
+        nodes = np.unique(cells[bone].ravel())
+        points = sm.mesh.geometry.x[nodes[nodes < n_owned]]
+        where = f"{scene.where('ct_image')}: {params.ct_image}"
+        try:
+            fraction = ct.check_coverage(image, points, comm, where)
+        except ValueError as err:
+            raise SceneError(str(err)) from None
+        if fraction > 0 and comm.rank == 0:
+            log.warning(
+                "%s: %.1f %% of the %s mesh's bone nodes lie outside the image (values clamped "
+                "to its border)",
+                where,
+                100 * fraction,
+                variant,
+            )
+        rho = ct.nodal_density(image, points, params.calibration())
+        lo, hi = (
+            comm.allreduce(float(rho.min(initial=np.inf)), op=MPI.MIN),
+            comm.allreduce(float(rho.max(initial=-np.inf)), op=MPI.MAX),
+        )
+        if hi - lo <= 1e-9 * max(abs(hi), 1.0) and comm.rank == 0:
+            log.warning("%s: the bone density is uniform (%.6g kg/m^3)", where, hi)
 
 
 def _vector_dofs(mesh) -> int:

@@ -48,6 +48,7 @@ SERIES = (
     "max_pressure",
     "max_shear",
     "contact_force",
+    "glenohumeral_penetration",
     "contact_area",
     "subscapularis_force",
     "supraspinatus_force",

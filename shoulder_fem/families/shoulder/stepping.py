@@ -489,6 +489,9 @@ class AngleOutputs:
         rec.add_series_point("max_shear", x, float(t.max()) if len(t) else 0.0, "deg", "Pa")
         rec.add_series_point("contact_force", x, float(np.linalg.norm(res["force"])), "deg", "N")
         rec.add_series_point("contact_area", x, float(res["area"]), "deg", "m^2")
+        rec.add_series_point(
+            "glenohumeral_penetration", x, float(res["max_penetration"]), "deg", "m"
+        )
         if wrap is not None:  # the rotator cuff on the humeral head: force, deepest overlap
             rec.add_series_point(
                 "muscle_bone_contact_force", x, float(np.linalg.norm(wrap["force"])), "deg", "N"

@@ -99,6 +99,7 @@ def run(
     comm: MPI.Comm = MPI.COMM_WORLD,
     solver_options: dict | None = None,
     make_parents: bool = True,
+    petsc_options: dict | None = None,
 ) -> Result:
     """Run ``scene`` with ``method`` ("coupled" or "decoupled") and write ``out``.
 
@@ -109,10 +110,17 @@ def run(
     ``make_parents`` creates the parent folders of ``out`` (the CLI turns it off, so that a
     mistyped ``--out`` is an error rather than a new tree of folders).
 
+    PETSc options: ``solver_options`` (key -> value, no dash) go to the method's nonlinear
+    solvers as the code's own options do (read once when a solver is set up); ``petsc_options``
+    (the CLI's ``--petsc``) reach every PETSc solver of the run under its own prefix and stay
+    readable for the whole run (``snes_monitor``, ``ksp_view``, ``mat_mumps_icntl_*`` at the
+    factorization), win over the code's values, are listed in ``summary.json``
+    (``petsc_options``) and an option no solver read is a warning and listed too
+    (``petsc_options_unused``: misspelt, or for no solver of this run).
+
     Returns:
         The run's summary.
     """
-    from shoulder_fem.engine.solver import ConvergenceError
     from shoulder_fem.io.output import OutputDir
     from shoulder_fem.io.resources import ResourceMonitor, blas_library, thread_settings
     from shoulder_fem.io.results import Recorder
@@ -149,17 +157,52 @@ def run(
         if comm.rank == 0:
             fields.mkdir(exist_ok=True)
         comm.Barrier()
-        failure = None
-        try:
-            with monitor.stage(method):
-                fam.methods[method](model, RunContext(recorder, monitor, fields, solver_options))
-        except ConvergenceError as err:
-            recorder.set_status("failed", str(err))
-            failure = err
-            logger.error("%s", err)
+        context = RunContext(recorder, monitor, fields, solver_options)
+        failure = _run_method(fam.methods[method], model, context, method, petsc_options, comm)
         data = recorder.write_summary(monitor.finish(outdir.path), monitor.stages)
         final = outdir.commit()
     result = Result(data, Path(final))
     if failure is not None:
         raise RunFailed(f"{failure} (steps before it are in {final})", result) from failure
     return result
+
+
+def _run_method(function, model, context, method: str, petsc_options, comm):
+    """Run a method's function with the user's PETSc options; its ConvergenceError or None."""
+    from shoulder_fem.engine.solver import (
+        ConvergenceError,
+        clear_user_options,
+        set_user_options,
+        unused_user_options,
+    )
+
+    recorder = context.recorder
+    failure = None
+    set_user_options(petsc_options)
+    try:
+        with context.monitor.stage(method):
+            function(model, context)
+    except ConvergenceError as err:
+        recorder.set_status("failed", str(err))
+        failure = err
+        logger.error("%s", err)
+    finally:
+        unused = unused_user_options() if petsc_options else []
+        clear_user_options()
+    if petsc_options:
+        _report_petsc_options(recorder, petsc_options, unused, comm)
+    return failure
+
+
+def _report_petsc_options(recorder, options: dict, unused: list[str] | None, comm) -> None:
+    """List the user's PETSc options in the summary; warn of those no solver read."""
+    recorder.extra("petsc_options", {str(k).lstrip("-"): str(v) for k, v in options.items()})
+    if unused is None:
+        logger.warning("PETSc options: could not ask PETSc which ones were read")
+        return
+    recorder.extra("petsc_options_unused", unused)
+    if unused and comm.rank == 0:
+        logger.warning(
+            "PETSc option(s) %s: read by no solver of this run (misspelt?)",
+            ", ".join(f"-{k}" for k in unused),
+        )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import signal
@@ -98,6 +99,35 @@ def test_unwritable_out(comm_tmp, capsys):
     if MPI.COMM_WORLD.rank == 0:
         assert "is not a folder" in capsys.readouterr().err
     assert _leftovers(comm_tmp) == ["a-file"]
+
+
+def test_petsc_options_reach_every_solver_and_a_misspelt_one_is_reported(tmp_path, capfd):
+    """``--petsc``: snes_monitor prints PETSc's residual lines, a MUMPS option reaches the
+    factorization (ksp_view shows the scaling ICNTL(8) = 1 it asked for, 7 by default), both
+    are listed in summary.json, a misspelt option is a warning and listed as unused, and none
+    of them is left in PETSc's database after the run."""
+    from petsc4py import PETSc
+
+    out = tmp_path / "po"
+    args = ["run", "spinning-bar", "--method", "coupled", "--out", str(out)]
+    for item in ("snes_monitor", "ksp_view", "mat_mumps_icntl_8=1"):
+        args += ["--petsc", item]
+    args.append("--petsc=-snes_monitr")  # PETSc's own spelling, with its dash
+    assert main(args) == 0
+    captured = capfd.readouterr()
+    assert "SNES Function norm" in captured.out
+    scaling = [line for line in captured.out.splitlines() if "value used for ICNTL(8)" in line]
+    assert scaling and all(line.strip().endswith(": 1") for line in scaling)
+    assert "-snes_monitr: read by no solver of this run (misspelt?)" in captured.err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["petsc_options"] == {
+        "snes_monitor": "",
+        "snes_monitr": "",
+        "ksp_view": "",
+        "mat_mumps_icntl_8": "1",
+    }
+    assert summary["petsc_options_unused"] == ["snes_monitr"]
+    assert not [k for k in PETSc.Options().getAll() if "snes_monitor" in k or "icntl" in k]
 
 
 def test_scenes_lists_spinning_bar(capsys):

@@ -36,3 +36,27 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         default="direct",
         help="MUMPS LU (default) or CG + GAMG with rigid-body near-nullspace",
     )
+    p.add_argument(
+        "--petsc",
+        dest="petsc",
+        action="append",
+        default=[],
+        metavar="KEY[=VALUE]",
+        help="a PETSc option for every solver of the run, under its prefix "
+        "(e.g. snes_monitor, ksp_view, mat_mumps_icntl_14=50; with its dash: "
+        "--petsc=-snes_monitor); repeatable; one that no solver reads is a warning",
+    )
+
+
+def petsc_options(items: list[str]) -> dict[str, str]:
+    """``--petsc`` items as a dict (key without its dash; a key alone has the value '')."""
+    from shoulder_fem.scene import SceneError
+
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        key = key.strip().lstrip("-")
+        if not key or any(c.isspace() for c in key):
+            raise SceneError(f"--petsc {item!r}: expected KEY or KEY=VALUE (e.g. snes_monitor)")
+        out[key] = value.strip()
+    return out

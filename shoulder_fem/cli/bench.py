@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from shoulder_fem.cli.args import petsc_options
 from shoulder_fem.cli.commands import SolverFailure, generic_report, prepare, say
 
 #: Exit status of a ``run`` that refused its input (``main.EXIT_INPUT``).
@@ -143,7 +144,15 @@ def _method(args, scene, options, method: str, staging: Path, reuse: dict, comm)
     try:
         if comm.size == 1:
             return _run_apart(args, method, folder)
-        return run(scene, method, args.level, folder, comm=comm, solver_options=options).data
+        return run(
+            scene,
+            method,
+            args.level,
+            folder,
+            comm=comm,
+            solver_options=options,
+            petsc_options=petsc_options(args.petsc),
+        ).data
     except RunFailed as err:
         raise SolverFailure(str(err)) from err
 
@@ -169,6 +178,8 @@ def _run_apart(args, method: str, folder: Path) -> dict:
     cmd += [] if args.level is None else ["--level", args.level]
     for item in args.sets:
         cmd += ["--set", item]
+    for item in args.petsc:
+        cmd += ["--petsc", item]
     child = subprocess.Popen(cmd)
     try:
         status = child.wait()

@@ -77,17 +77,27 @@ def prepare(args):
     if getattr(args, "method", None):
         check_method(args.method)
     scene.level(args.level)
+    from shoulder_fem.cli.args import petsc_options
+
+    petsc_options(getattr(args, "petsc", []))  # a malformed --petsc: an input error now
     return scene, linear_solver_options(args.linear_solver)
 
 
 def cmd_run(args) -> int:
     """Run one scene with one method."""
     from shoulder_fem.api import RunFailed, run
+    from shoulder_fem.cli.args import petsc_options
 
     scene, options = prepare(args)
     try:
         result = run(
-            scene, args.method, args.level, args.out, solver_options=options, make_parents=False
+            scene,
+            args.method,
+            args.level,
+            args.out,
+            solver_options=options,
+            make_parents=False,
+            petsc_options=petsc_options(args.petsc),
         )
     except RunFailed as err:
         raise SolverFailure(str(err)) from err

@@ -61,25 +61,96 @@ def unique_prefix(name: str) -> str:
     return f"{name}{next(_prefix_counter)}_"
 
 
+#: The user's PETSc options (``--petsc``, :func:`set_user_options`): key (no dash) -> value.
+_USER_OPTIONS: dict[str, str] = {}
+#: Where they were placed: prefixed name in PETSc's database -> the user's key.
+_PLACED: dict[str, str] = {}
+
+
+def set_user_options(options: Mapping[str, object] | None) -> None:
+    """Options every solver of the run reads under its own prefix (``None``: none).
+
+    Unlike a solver's own options (:func:`set_from_options` removes them once read), these
+    stay in PETSc's database under each solver's prefix until :func:`clear_user_options`, so
+    that what PETSc reads late (a line search's, MUMPS's at the factorization, ``ksp_view``
+    at the solve) reaches it too; they win over the code's values of the same key.
+    """
+    clear_user_options()
+    for key, value in (options or {}).items():
+        _USER_OPTIONS[str(key).lstrip("-")] = "" if value is None else str(value)
+
+
+def clear_user_options() -> None:
+    """Take the user's options out of PETSc's database."""
+    db = PETSc.Options()
+    for name in _PLACED:
+        db.delValue(name)
+    _PLACED.clear()
+    _USER_OPTIONS.clear()
+
+
+def unused_user_options() -> list[str] | None:
+    """The user's options that no solver read so far (misspelt, or of no solver of the run).
+
+    None when PETSc's library cannot be asked (its ``PetscOptionsUsed``).
+    """
+    used = _options_used()
+    if used is None:
+        return None
+    read = {key for name, key in _PLACED.items() if used(name)}
+    return sorted(set(_USER_OPTIONS) - read)
+
+
+def _options_used():
+    """``PetscOptionsUsed`` of the loaded PETSc library (petsc4py 3.18 does not expose it)."""
+    import ctypes
+    import glob
+
+    import petsc4py
+
+    config = petsc4py.get_config()
+    found = sorted(
+        glob.glob(f"{config['PETSC_DIR']}/{config.get('PETSC_ARCH', '')}/lib/libpetsc*.so*")
+    )
+    if not found:
+        return None
+    try:
+        lib = ctypes.CDLL(found[0])  # the same library petsc4py loaded: its database
+        query = lib.PetscOptionsUsed
+    except (OSError, AttributeError):
+        return None
+
+    def used(name: str) -> bool:
+        flag = ctypes.c_int(0)
+        return query(None, name.encode(), ctypes.byref(flag)) == 0 and bool(flag.value)
+
+    return used
+
+
 def set_from_options(
     solver: PETSc.SNES | PETSc.KSP, options: Mapping[str, object], ksp: bool = True
 ) -> None:
     """Let ``solver`` read ``options`` under its own prefix, then remove them again.
 
     The one place where options enter PETSc's global database, so that nothing leaks into
-    another solver. For a SNES, its KSP reads them too (unless ``ksp`` is False).
+    another solver. For a SNES, its KSP reads them too (unless ``ksp`` is False). The user's
+    options (:func:`set_user_options`) are placed under the same prefix and stay.
     """
     prefix = solver.getOptionsPrefix() or ""
     db = PETSc.Options()
     for key, value in options.items():
         db[f"{prefix}{key}"] = value
+    for key, value in _USER_OPTIONS.items():
+        db[f"{prefix}{key}"] = value
+        _PLACED[f"{prefix}{key}"] = key
     try:
         solver.setFromOptions()
         if ksp and isinstance(solver, PETSc.SNES):
             solver.getKSP().setFromOptions()
     finally:
         for key in options:
-            db.delValue(f"{prefix}{key}")
+            if key not in _USER_OPTIONS:
+                db.delValue(f"{prefix}{key}")
 
 
 def default_snes_options() -> dict:

@@ -168,3 +168,35 @@ def test_a_rigid_system_names_a_solve_that_cannot_be_rescued():
     # TrialGuard's max_halvings = 20 per shortened step: nothing admissible, all of them used
     assert system.stats.step_halvings == 20 * system.stats.shortened_steps
     system.destroy()
+
+
+def test_mumps_options_reach_the_factorization_and_leave_with_the_solver():
+    """A solver's own MUMPS option (part 1's QAMD ordering, ICNTL(7) = 6) is read at the
+    factorization, after the solver's set-up: it stays in PETSc's database under the solver's
+    prefix until :func:`release_options`, while its other options leave at once (they used to
+    leave together, and MUMPS never saw its options)."""
+    from shoulder_fem.engine.solver import release_options
+
+    A = PETSc.Mat().createAIJ([4, 4], comm=PETSc.COMM_SELF)
+    A.setUp()
+    for i in range(4):
+        A[i, i] = 2.0 + i
+    A.assemble()
+    ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+    ksp.setOptionsPrefix("mumps_late_")
+    ksp.setOperators(A)
+    options = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
+    set_from_options(ksp, options | {"mat_mumps_icntl_7": 6})
+    left = PETSc.Options().getAll()
+    assert "mumps_late_mat_mumps_icntl_7" in left and "mumps_late_ksp_type" not in left
+    b = A.createVecLeft()
+    b.set(1.0)
+    x = b.duplicate()
+    ksp.solve(b, x)
+    factor = ksp.getPC().getFactorMatrix()
+    assert factor.getMumpsIcntl(7) == 6 and factor.getMumpsInfog(7) == 6  # asked, and used
+    assert np.allclose(x.array, 1.0 / (2.0 + np.arange(4)))
+    release_options("mumps_late_")
+    assert not [k for k in PETSc.Options().getAll() if k.startswith("mumps_late_")]
+    for obj in (ksp, A, b, x):
+        obj.destroy()

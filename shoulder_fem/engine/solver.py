@@ -61,6 +61,13 @@ def unique_prefix(name: str) -> str:
     return f"{name}{next(_prefix_counter)}_"
 
 
+#: Option families a solver reads after its set-up (MUMPS's, at each factorization): a
+#: solver's own options of these stay in PETSc's database under its prefix until
+#: :func:`release_options`, instead of being removed once the solver is set up (which left
+#: them unread).
+LATE_OPTIONS = ("mat_mumps_",)
+_KEPT: dict[str, set[str]] = {}
+
 #: The user's PETSc options (``--petsc``, :func:`set_user_options`): key (no dash) -> value.
 _USER_OPTIONS: dict[str, str] = {}
 #: Where they were placed: prefixed name in PETSc's database -> the user's key.
@@ -140,6 +147,8 @@ def set_from_options(
     db = PETSc.Options()
     for key, value in options.items():
         db[f"{prefix}{key}"] = value
+        if key.startswith(LATE_OPTIONS):  # read at the factorization: kept for it
+            _KEPT.setdefault(prefix, set()).add(key)
     for key, value in _USER_OPTIONS.items():
         db[f"{prefix}{key}"] = value
         _PLACED[f"{prefix}{key}"] = key
@@ -149,8 +158,19 @@ def set_from_options(
             solver.getKSP().setFromOptions()
     finally:
         for key in options:
-            if key not in _USER_OPTIONS:
+            if key not in _USER_OPTIONS and not key.startswith(LATE_OPTIONS):
                 db.delValue(f"{prefix}{key}")
+
+
+def release_options(prefix: str) -> None:
+    """Remove the options kept for the factorizations of the solver of ``prefix``.
+
+    Called when the solver is destroyed (:data:`LATE_OPTIONS`).
+    """
+    db = PETSc.Options()
+    for key in _KEPT.pop(prefix, ()):
+        if key not in _USER_OPTIONS:
+            db.delValue(f"{prefix}{key}")
 
 
 def default_snes_options() -> dict:

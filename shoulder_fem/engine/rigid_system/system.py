@@ -35,6 +35,7 @@ from shoulder_fem.engine.solver import (
     ConvergenceError,
     default_snes_options,
     reason_name,
+    release_options,
     set_from_options,
     unique_prefix,
 )
@@ -378,7 +379,8 @@ class RigidSystem(SystemReports, ControlledSystem):
 
     # ---- outputs -----------------------------------------------------------------------------
     def destroy(self) -> None:
-        """Free the PETSc objects."""
+        """Free the PETSc objects (and the options kept for their factorizations)."""
+        release_options(self.snes.getOptionsPrefix() or "")
         self.snes.destroy()
         self._guard.destroy()
         self._problem.destroy()

@@ -461,7 +461,7 @@ def test_mesh_refuses_a_ct_that_misses_the_model_and_warns_on_a_uniform_one(tmp_
     assert not out.exists() and not list(tmp_path.glob("far.partial-*"))
     flat = ct.CTImage(np.full_like(phantom.hu, 300.0), phantom.affine)
     ct.write_nifti(flat, tmp_path / "flat.nii.gz")
-    with _log_records("shoulder_fem.cli.mesh") as records:
+    with _log_records("shoulder_fem.io.ct") as records:
         args = [*base, "--ct", str(tmp_path / "flat.nii.gz"), "--out", str(tmp_path / "flat")]
         assert main(["-q", *args]) == 0
     assert any("the density is uniform" in r.getMessage() for r in records), records

@@ -98,10 +98,8 @@ def cmd_mesh(args) -> int:
                 dens.write_nifti(image, out.path / "density.nii.gz")
         _write_xdmf(comm, out.path, sm)
         if args.ct is not None:  # the phantom covers the bones by design, clamped beyond
-            _check_coverage(comm, sm.mesh, image, args.ct)
+            _check_scan(comm, sm.mesh, image, args.ct, calibration)
         rho, modulus = dens.nodal_modulus(sm.mesh, image, calibration)
-        if args.ct is not None:
-            _check_uniform(comm, rho, args.ct)
         _write_density(comm, out.path / "density.xdmf", sm.mesh, rho, modulus)
         stats = mesh_statistics(sm)
         summary = _summary(args, scene, level, sizes, stats, calibration)
@@ -154,32 +152,16 @@ def _shoulder_scene(args):
     return scene, level, sizes, geometry
 
 
-def _check_coverage(comm, mesh, image, source) -> None:
-    """Refuse a CT image that misses the model (collective; the same error on every rank)."""
+def _check_scan(comm, mesh, image, source, calibration) -> None:
+    """Refuse a CT image that misses the model, warn when partly or uniform (collective)."""
     from shoulder_fem.io import ct as dens
     from shoulder_fem.scene import SceneError
 
     n_owned = mesh.geometry.index_map().size_local
     try:
-        fraction = dens.check_coverage(image, mesh.geometry.x[:n_owned], comm, f"--ct {source}")
+        dens.check_scan(image, mesh.geometry.x[:n_owned], comm, f"--ct {source}", calibration)
     except ValueError as err:
         raise SceneError(str(err)) from None
-    if fraction > 0 and comm.rank == 0:
-        logger.warning(
-            "--ct %s: %.1f %% of the mesh's nodes lie outside the image (values "
-            "clamped to its border)",
-            source,
-            100 * fraction,
-        )
-
-
-def _check_uniform(comm, rho, source) -> None:
-    """Warn when the density sampled at the nodes is the same everywhere (collective)."""
-    from shoulder_fem.io import ct as dens
-
-    lo, hi = dens.density_range(rho, comm)
-    if hi - lo <= 1e-9 * max(abs(hi), 1.0) and comm.rank == 0:
-        logger.warning("--ct %s: the density is uniform (%.6g kg/m^3) over the mesh", source, hi)
 
 
 def _summary(args, scene, level: str, sizes: dict, stats: dict, calibration) -> dict:

@@ -298,14 +298,32 @@ def check_coverage(image: CTImage, points: np.ndarray, comm, source) -> float:
     return float(fraction)
 
 
-def density_range(rho, comm) -> tuple[float, float]:
-    """The smallest and largest nodal density of a P1 function (kg/m^3; collective)."""
+def check_scan(
+    image: CTImage, points: np.ndarray, comm, source: str, calibration: Calibration | None = None
+) -> None:
+    """Check a scan for the bones at ``points`` (this rank's, (n, 3), m; collective).
+
+    Refused with a ValueError when it misses more than :data:`MAX_OUTSIDE` of them
+    (:func:`check_coverage`); a warning when it misses some, or when its density is the same
+    at all of them.
+    """
+    import logging
+
     from mpi4py import MPI
 
-    local = rho.x.array
-    lo = comm.allreduce(float(local.min()) if len(local) else np.inf, op=MPI.MIN)
-    hi = comm.allreduce(float(local.max()) if len(local) else -np.inf, op=MPI.MAX)
-    return lo, hi
+    log = logging.getLogger(__name__)
+    fraction = check_coverage(image, points, comm, source)
+    if fraction > 0 and comm.rank == 0:
+        log.warning(
+            "%s: %.1f %% of the mesh's nodes lie outside the image (values clamped to its border)",
+            source,
+            100 * fraction,
+        )
+    rho = nodal_density(image, points, calibration)
+    lo = comm.allreduce(float(rho.min(initial=np.inf)), op=MPI.MIN)
+    hi = comm.allreduce(float(rho.max(initial=-np.inf)), op=MPI.MAX)
+    if hi - lo <= 1e-9 * max(abs(hi), 1.0) and comm.rank == 0:
+        log.warning("%s: the density is uniform (%.6g kg/m^3) over the mesh", source, hi)
 
 
 def _mm(xyz) -> str:

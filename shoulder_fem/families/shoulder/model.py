@@ -163,11 +163,7 @@ def _image(scene: Scene, params: ShoulderParameters, geometry) -> ct.CTImage:
 
 def _check_image(scene: Scene, params, image: ct.CTImage, meshes: dict) -> None:
     """Refuse a scan that misses the bones; warn when part of them, or a uniform density."""
-    import logging
-
-    log = logging.getLogger(__name__)
-    for variant, sm in meshes.items():
-        comm = sm.mesh.comm
+    for sm in meshes.values():
         bone = np.concatenate([sm.cell_tags.find(S.MARKERS[b].id) for b in ("humerus", "scapula")])
         n_owned = sm.mesh.geometry.index_map().size_local
         cells = sm.mesh.geometry.dofmap.array.reshape(-1, 4)  # straight tetrahedra
@@ -175,24 +171,9 @@ def _check_image(scene: Scene, params, image: ct.CTImage, meshes: dict) -> None:
         points = sm.mesh.geometry.x[nodes[nodes < n_owned]]
         where = f"{scene.where('ct_image')}: {params.ct_image}"
         try:
-            fraction = ct.check_coverage(image, points, comm, where)
+            ct.check_scan(image, points, sm.mesh.comm, where, params.calibration())
         except ValueError as err:
             raise SceneError(str(err)) from None
-        if fraction > 0 and comm.rank == 0:
-            log.warning(
-                "%s: %.1f %% of the %s mesh's bone nodes lie outside the image (values clamped "
-                "to its border)",
-                where,
-                100 * fraction,
-                variant,
-            )
-        rho = ct.nodal_density(image, points, params.calibration())
-        lo, hi = (
-            comm.allreduce(float(rho.min(initial=np.inf)), op=MPI.MIN),
-            comm.allreduce(float(rho.max(initial=-np.inf)), op=MPI.MAX),
-        )
-        if hi - lo <= 1e-9 * max(abs(hi), 1.0) and comm.rank == 0:
-            log.warning("%s: the bone density is uniform (%.6g kg/m^3)", where, hi)
 
 
 def _vector_dofs(mesh) -> int:

@@ -330,14 +330,7 @@ def _plot_von_mises_histogram(c: np.ndarray, d: np.ndarray, angles: str, note, h
     diff = d - c
     cmax = float(np.max(np.abs(c))) if len(c) else 0.0
     if len(diff):
-        ax.hist(
-            diff,
-            bins=60,
-            color="C0",
-            alpha=0.8,
-            label=f"mean {diff.mean():.3g} MPa, std {diff.std():.3g} MPa",
-        )
-        ax.legend(fontsize=8)
+        _histogram(ax, diff, "C0", f"mean {diff.mean():.3g} MPa, std {diff.std():.3g} MPa")
     ax.axvline(0.0, color="k", lw=0.8)
     ax.set_xlabel("von Mises, decoupled − coupled (MPa)")
     ax.set_ylabel("vertices")
@@ -351,15 +344,8 @@ def _plot_von_mises_histogram(c: np.ndarray, d: np.ndarray, angles: str, note, h
     loaded = np.abs(c) >= REL_ERROR_FLOOR * cmax if cmax > 0 else np.zeros(len(c), dtype=bool)
     if np.any(loaded):
         rel = 100.0 * diff[loaded] / c[loaded]
-        ax2.hist(
-            rel,
-            bins=60,
-            weights=np.full(len(rel), 100.0 / len(rel)),
-            color="C2",
-            alpha=0.8,
-            label=f"mean {rel.mean():+.2f} %, std {rel.std():.2f} %",
-        )
-        ax2.legend(fontsize=8)
+        label = f"mean {rel.mean():+.2f} %, std {rel.std():.2f} %"
+        _histogram(ax2, rel, "C2", label, weights=np.full(len(rel), 100.0 / len(rel)))
     ax2.axvline(0.0, color="k", lw=0.8)
     ax2.set_xlabel("relative error, (decoupled − coupled) / coupled (%)")
     ax2.set_ylabel("% of the vertices")
@@ -373,6 +359,12 @@ def _plot_von_mises_histogram(c: np.ndarray, d: np.ndarray, angles: str, note, h
     )
     fig.tight_layout()
     save_figure(fig, hist)
+
+
+def _histogram(ax, values: np.ndarray, colour: str, label: str, weights=None) -> None:
+    """60 bins of ``values`` with their legend."""
+    ax.hist(values, bins=60, weights=weights, color=colour, alpha=0.8, label=label)
+    ax.legend(fontsize=8)
 
 
 def _plot_von_mises_by_angle(metrics: dict[str, Any], path: Path) -> None:

@@ -8,6 +8,9 @@ export OPENBLAS_NUM_THREADS := 1
 export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
+# mpirun forwards SIGTERM to the ranks and kills them after this many seconds (Open MPI's
+# default, 1, is too short for rank 0 to remove an unfinished output folder).
+export OMPI_MCA_odls_base_sigkill_timeout := 10
 MPIRUN := mpirun -n 2
 DEMO_OUT ?= results/demo
 LEVEL ?= coarse

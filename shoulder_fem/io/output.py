@@ -19,6 +19,7 @@ import secrets
 import shutil
 import socket
 import tempfile
+import weakref
 from collections.abc import Callable, Mapping
 from pathlib import Path, PurePath
 from types import TracebackType
@@ -162,6 +163,19 @@ def atomic_savez(path: str | os.PathLike[str], arrays: Mapping[str, Any]) -> Non
 # Output folder
 # --------------------------------------------------------------------------------------------
 
+#: The output folders of this process not yet committed or aborted.
+_OPEN: weakref.WeakSet = weakref.WeakSet()
+
+
+def abort_open_outputs() -> None:
+    """Discard every output folder still being written by this process.
+
+    Rank 0 removes it; no MPI communication: for a process that must stop at once (SIGTERM
+    under mpirun).
+    """
+    for out in list(_OPEN):
+        out.abort()
+
 
 #: In a staging folder: ``<host> <pid>`` of the process that writes it (rank 0).
 OWNER_NAME = ".owner"
@@ -284,6 +298,7 @@ class OutputDir:
         self.token: str = token
         self._staging = self.final.parent / f"{self.final.name}.partial-{token}"
         self._state = "open"
+        _OPEN.add(self)
 
     @property
     def path(self) -> Path:
@@ -333,8 +348,10 @@ class OutputDir:
         error = self.comm.bcast(error, root=0)
         if error is not None:
             self._state = "failed"
+            _OPEN.discard(self)
             raise OutputError(error)
         self._state = "committed"
+        _OPEN.discard(self)
         return self.final
 
     def _commit_rank0(self) -> None:
@@ -373,6 +390,7 @@ class OutputDir:
         if self._state != "open":
             return
         self._state = "aborted"
+        _OPEN.discard(self)
         if self.comm.rank == 0:
             # Another rank may still be closing files inside: retry once if the folder refills.
             for _ in range(3):

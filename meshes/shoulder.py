@@ -37,10 +37,11 @@ gmsh works in millimetres (OCC tolerances are absolute); :func:`model_to_dolfinx
 dolfinx mesh to metres.
 
 Element choice (stated here, recorded in ``mesh.json``): straight-sided quadratic (P2)
-tetrahedra for every body. The nearly incompressible cartilage and muscle use P2 displacement
-with a continuous P1 pressure per body (Taylor-Hood P2/P1, inf-sup stable: no volumetric
-locking); bone (compressible, nu = 0.3) uses P2 displacement alone. Linear tetrahedra would lock
-in the soft tissue, which is why the DOF counts of the levels are vector-P2 (+ P1 pressure) counts.
+tetrahedra for every body. The mesh is sized for P2 displacement with, in the nearly
+incompressible cartilage and muscle, a continuous P1 pressure per body (Taylor-Hood P2/P1,
+inf-sup stable: no volumetric locking); the solvers use P2 displacement alone in every body
+today (Taylor-Hood is issue 20's item 2). Linear tetrahedra would lock in the soft tissue,
+which is why the DOF counts of the levels are vector-P2 (+ P1 pressure) counts.
 
 Levels (element sizes in the scene file, ``[levels.*]``, in m): ``h_joint`` in the cartilages and
 the bone next to them, growing to ``h_bone`` in the bone away from the joint, ``h_muscle`` in the

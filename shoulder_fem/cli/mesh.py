@@ -28,13 +28,14 @@ ELEMENT = {
     "cell": "straight-sided tetrahedron",
     "bone": "P2 displacement (compressible, nu = 0.3)",
     "cartilage_and_muscle": (
-        "Taylor-Hood P2/P1: P2 displacement, continuous P1 pressure per body (inf-sup stable, "
-        "no volumetric locking of the nearly incompressible tissue)"
+        "sized for Taylor-Hood P2/P1 (P2 displacement, continuous P1 pressure per body); the "
+        "runs solve P2 displacement alone today (the Taylor-Hood pressure is issue 20)"
     ),
     "dof_count": (
         "dofs = dofs_displacement (3 x P2 nodes of the mesh) + dofs_pressure (P1 vertices of "
-        "each soft body) + 6 per rigid bone (rigid-bone variant); dofs_p1 = 3 x vertices is "
-        "the count of a linear element, for comparison with the paper's 8-node hexahedra"
+        "each soft body, which the runs do not solve today) + 6 per rigid bone (rigid-bone "
+        "variant); dofs_p1 = 3 x vertices is the count of a linear element, for comparison "
+        "with the paper's 8-node hexahedra"
     ),
 }
 

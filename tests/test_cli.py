@@ -261,6 +261,30 @@ def test_sigterm_under_mpirun_removes_the_unfinished_output(tmp_path: Path) -> N
         assert list(tmp_path.iterdir()) == []
 
 
+def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
+    """A run whose disk fills up (a 100 kB file system: its fields do not fit) says so in one
+    line naming the file, the free space and the likely cause, exits as bad input (2) and
+    leaves nothing (it used to print HDF5's error stack, ~70 lines, and a traceback)."""
+    disk = tmp_path / "small"
+    disk.mkdir()
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=100k", "tmpfs", str(disk)], capture_output=True
+    )
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small file system here: {mounted.stderr!r}")
+    try:
+        cmd = [sys.executable, "-m", "shoulder_fem.cli", "-q", "run", "shoulder-internal-rotation"]
+        cmd += ["--method", "decoupled", "--out", str(disk / "out")]
+        done = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ))
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1, lines
+        assert f"{disk / 'out'}/fields/" in lines[0] and "is the disk full?" in lines[0], lines
+        assert list(disk.iterdir()) == []
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)
+
+
 def test_serial_bench_runs_each_method_in_its_own_process(tmp_path: Path) -> None:
     """``bench`` (serial) runs each method as ``shoulder-fem run`` in a process of its own, so
     each peak memory is the method's: the decoupled run starts from a fresh process's memory

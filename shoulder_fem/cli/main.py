@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import logging
 import os
 import signal
@@ -268,6 +269,11 @@ def main(argv: list[str] | None = None) -> int:
         }[args.command](args)
     except (SceneError, OutputError, commands.InputFailure) as err:
         commands.error(str(err))
+        return EXIT_INPUT
+    except OSError as err:  # a full disk outside the fields (summary, arrays)
+        if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        commands.error(f"{err.filename or 'a file'}: {err.strerror}: is the disk full?")
         return EXIT_INPUT
     except commands.SolverFailure as err:
         commands.error(str(err))

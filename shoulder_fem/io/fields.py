@@ -18,6 +18,50 @@ if TYPE_CHECKING:
 
 __all__ = ["FieldWriter"]
 
+_HDF5_QUIET = []
+
+
+def _quiet_hdf5() -> None:
+    """Turn off HDF5's own error printing (once per process).
+
+    A failed write (a full disk) printed HDF5's whole error stack, about 70 lines per rank,
+    before dolfinx raised; the error is reported in one line instead (:class:`FieldWriter`).
+    The library is the one dolfinx loaded (found in the process's memory map).
+    """
+    if _HDF5_QUIET:
+        return
+    _HDF5_QUIET.append(True)
+    import ctypes
+    import re
+
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return
+    for lib in sorted(set(re.findall(r"(/\S*libhdf5[^/\s]*\.so[^/\s]*)", maps))):
+        if "_hl" in Path(lib).name:
+            continue
+        try:
+            ctypes.CDLL(lib).H5Eset_auto2(ctypes.c_int64(0), None, None)  # H5E_DEFAULT
+        except (OSError, AttributeError):
+            continue
+
+
+def _write_failed(path: Path, what: str, err: Exception) -> Exception:
+    """The one-line error of a write that failed (with the free space of its file system)."""
+    import re
+    import shutil
+
+    from shoulder_fem.io.output import OutputError
+
+    try:
+        free = f"{shutil.disk_usage(path.parent).free / 1e6:.1f} MB free there"
+    except OSError:
+        free = "free space unknown"
+    shown = re.sub(r"\.partial-[0-9a-f]+", "", str(path))  # the output's own name
+    reason = str(err).strip().rstrip(".")
+    return OutputError(f"{shown}: {what} failed ({reason}; {free}): is the disk full?")
+
 
 class FieldWriter:
     """Time series of fields in one XDMF/HDF5 file pair for ParaView (collective throughout).
@@ -48,8 +92,13 @@ class FieldWriter:
         if comm.rank == 0:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         comm.Barrier()
-        self._file = XDMFFile(comm, str(self.path), "w")
-        self._file.write_mesh(mesh)
+        _quiet_hdf5()
+        self._closed = True
+        try:
+            self._file = XDMFFile(comm, str(self.path), "w")
+            self._file.write_mesh(mesh)
+        except RuntimeError as err:
+            raise _write_failed(self.path, "writing the mesh", err) from None
         self._times: dict[str, list[float]] = {}
         self._closed = False
 
@@ -95,7 +144,10 @@ class FieldWriter:
                 )
         for u in functions:
             u.x.scatter_forward()
-            self._file.write_function(u, t)
+            try:
+                self._file.write_function(u, t)
+            except RuntimeError as err:
+                raise _write_failed(self.path, f"writing {u.name!r} at {t:g}", err) from None
             self._times.setdefault(u.name, []).append(t)
 
     @property
@@ -106,8 +158,11 @@ class FieldWriter:
     def close(self) -> None:
         """Close the file (collective; idempotent)."""
         if not self._closed:
-            self._file.close()
             self._closed = True
+            try:
+                self._file.close()
+            except RuntimeError as err:
+                raise _write_failed(self.path, "closing the file", err) from None
 
     def __enter__(self) -> FieldWriter:
         return self

@@ -131,6 +131,18 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
         # angle (XDMF "Time" = the angle in deg), the same values as shoulder.npz's
         import h5py
 
+        first = "coupled" if method == "coupled" else "part1"  # the joint, with its contact
+        with h5py.File(Path(result.folder) / "fields" / f"{first}.h5", "r") as h5:
+            for field in ("displacement", "contact_pressure", "contact_shear", "body"):
+                times = [float(k.replace("_", ".")) for k in _steps(h5[f"Function/{field}"])]
+                assert np.allclose(times, angles, rtol=0, atol=1e-9), (field, times)
+            p_60 = h5["Function/contact_pressure"][_steps(h5["Function/contact_pressure"])[-1]][:]
+            body = h5["Function/body"][_steps(h5["Function/body"])[-1]][:]
+        _, pmax = _series(result, "max_pressure")  # the glenoid is the only slave surface
+        assert p_60.max() == pytest.approx(pmax[-1], rel=1e-12)
+        assert {MS.HUMERAL_CARTILAGE.id, MS.GLENOID_CARTILAGE.id} <= set(
+            np.unique(body).astype(int)
+        )
         name = "coupled" if method == "coupled" else "part2"
         with h5py.File(Path(result.folder) / "fields" / f"{name}.h5", "r") as h5:
             for field in ("displacement", "stress", "von_mises"):

@@ -36,6 +36,7 @@ class Probe:
         V = u.function_space
         mesh = V.mesh
         self.u, self.V, self.mesh, self.contact = u, V, mesh, contact
+        self.cell_tags = cell_tags
         self.comm = mesh.comm
         dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=params.quadrature())
         self._muscle = muscle_forms(u, ufl.TestFunction(V), dx)

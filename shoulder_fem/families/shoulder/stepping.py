@@ -433,6 +433,10 @@ class AngleOutputs:
         self.writer = FieldWriter(self.comm, mesh, fields_dir / f"{job.label}.xdmf")
         P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
         self.u1 = dolfinx.fem.Function(P1, name="displacement")
+        # the body of every cell (its cell tag: meshes.shoulder's markers), for ParaView
+        self.body = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)), name="body")
+        tags = job.probe.cell_tags
+        self.body.x.array[tags.indices] = tags.values
 
     def angle(self) -> float:
         """The humerus's twist about its shaft axis (rad): the progress angle."""
@@ -466,7 +470,9 @@ class AngleOutputs:
         if job.stress is not None:
             record_von_mises(self.recorder, job.stress, x, data, self.comm)
         self.u1.interpolate(job.u)
-        self.writer.write([self.u1, *(job.stress.fields() if job.stress else ())], x)
+        pressure, shear = job.contact.pressure_fields()  # on the slave surfaces, Pa
+        stress = job.stress.fields() if job.stress else ()
+        self.writer.write([self.u1, pressure, shear, self.body, *stress], x)
         logger.info(
             "%s: output at %.0f deg (measured %.3f deg), max pressure %.3f MPa",
             job.label,

@@ -261,14 +261,17 @@ def test_sigterm_under_mpirun_removes_the_unfinished_output(tmp_path: Path) -> N
         assert list(tmp_path.iterdir()) == []
 
 
-def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
-    """A run whose disk fills up (a 100 kB file system: its fields do not fit) says so in one
-    line naming the file, the free space and the likely cause, exits as bad input (2) and
-    leaves nothing (it used to print HDF5's error stack, ~70 lines, and a traceback)."""
+@pytest.mark.parametrize("size", ["100k", "300k"])
+def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, size: str) -> None:
+    """A run whose disk fills up (a 100 or 300 kB file system: its fields do not fit; the first
+    fails closing part 1's file, the second writing part 2's) says so in one line naming the
+    file, the free space and the likely cause, exits as bad input (2) and leaves nothing (it
+    used to print HDF5's error stack, ~70 lines, and a traceback; a failed close then crashed
+    the process at its exit)."""
     disk = tmp_path / "small"
     disk.mkdir()
     mounted = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=100k", "tmpfs", str(disk)], capture_output=True
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(disk)], capture_output=True
     )
     if mounted.returncode != 0:
         pytest.skip(f"cannot mount a small file system here: {mounted.stderr!r}")

@@ -269,6 +269,12 @@ def main(argv: list[str] | None = None) -> int:
         }[args.command](args)
     except (SceneError, OutputError, commands.InputFailure) as err:
         commands.error(str(err))
+        from shoulder_fem.io.fields import hdf5_failed
+
+        if hdf5_failed():  # HDF5's teardown would crash the process: end it now
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(EXIT_INPUT)
         return EXIT_INPUT
     except OSError as err:  # a full disk outside the fields (summary, arrays)
         if err.errno not in (errno.ENOSPC, errno.EDQUOT):

@@ -47,10 +47,25 @@ def _quiet_hdf5() -> None:
             continue
 
 
+_HDF5_FAILED = []
+
+
+def hdf5_failed() -> bool:
+    """Whether a field file failed to write or close in this process.
+
+    HDF5 is then in a state where the file's destructor at the interpreter's exit crashed the
+    process (a segmentation fault after the one-line error, measured on a full disk): the
+    command line ends such a process at once instead (``os._exit``).
+    """
+    return bool(_HDF5_FAILED)
+
+
 def _write_failed(path: Path, what: str, err: Exception) -> Exception:
     """The one-line error of a write that failed (with the free space of its file system)."""
     import re
     import shutil
+
+    _HDF5_FAILED.append(True)
 
     from shoulder_fem.io.output import OutputError
 

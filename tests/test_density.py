@@ -139,3 +139,16 @@ def test_dicom_series_round_trip(tmp_path):
     image = D.read_ct(tmp_path)
     np.testing.assert_allclose(image.hu, hu)
     np.testing.assert_allclose(image.affine[:3, 2], [0, 0, 2e-3])
+
+
+def test_scan_check_of_no_point_says_nothing(caplog):
+    """A mesh variant without bone volumes (the rigid-bone one) has no node to check: no
+    warning (it used to warn of a uniform density of -inf kg/m^3); a uniform image over real
+    points still warns, by the density it has (the calibration of its HU, by hand)."""
+    image = D.CTImage(np.full((4, 4, 4), 300.0), np.eye(4) * 1e-3 + np.diag([0, 0, 0, 1 - 1e-3]))
+    with caplog.at_level("WARNING", logger=D.__name__):
+        D.check_scan(image, np.zeros((0, 3)), MPI.COMM_SELF, "scan")
+    assert caplog.text == ""
+    with caplog.at_level("WARNING", logger=D.__name__):
+        D.check_scan(image, np.full((5, 3), 1e-3), MPI.COMM_SELF, "scan", D.Calibration())
+    assert f"uniform ({131.7 + 1.169 * 300:.6g} kg/m^3)" in caplog.text

@@ -322,6 +322,8 @@ def check_scan(
     rho = nodal_density(image, points, calibration)
     lo = comm.allreduce(float(rho.min(initial=np.inf)), op=MPI.MIN)
     hi = comm.allreduce(float(rho.max(initial=-np.inf)), op=MPI.MAX)
+    if lo > hi:  # no point on any rank (a mesh variant without bone volumes)
+        return
     if hi - lo <= 1e-9 * max(abs(hi), 1.0) and comm.rank == 0:
         log.warning("%s: the density is uniform (%.6g kg/m^3) over the mesh", source, hi)
 

@@ -18,10 +18,7 @@ import sys
 from pathlib import Path
 
 from shoulder_fem.cli.args import petsc_options
-from shoulder_fem.cli.commands import SolverFailure, generic_report, prepare, say
-
-#: Exit status of a ``run`` that refused its input (``main.EXIT_INPUT``).
-INPUT_REFUSED = 2
+from shoulder_fem.cli.commands import EXIT_INPUT, SolverFailure, generic_report, prepare, say
 
 #: What ``OUT/bench.json`` is called (also a result file: a rerun may replace the folder).
 BENCH_NAME = "bench.json"
@@ -192,7 +189,7 @@ def _run_apart(args, method: str, folder: Path) -> dict:
         if status == 0:
             return result.data
         raise RunFailed(f"{method}: {result.data.get('message')}", result)
-    if status == INPUT_REFUSED:  # the child printed which input and why
+    if status == EXIT_INPUT:  # the child refused its input and printed which and why
         from shoulder_fem.scene import SceneError
 
         raise SceneError(f"bench: the {method} run refused its input (above); nothing was run")

@@ -10,13 +10,18 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+#: Exit status of a command whose input cannot be used (:class:`InputFailure`, a SceneError...).
+EXIT_INPUT = 2
+#: Exit status of a command stopped by a solver failure (:class:`SolverFailure`).
+EXIT_SOLVER = 3
+
 
 class SolverFailure(RuntimeError):
-    """A run stopped on a solver failure (exit status 3)."""
+    """A run stopped on a solver failure (exit status :data:`EXIT_SOLVER`)."""
 
 
 class InputFailure(ValueError):
-    """An input that cannot be used, e.g. a results folder to compare (exit status 2)."""
+    """An input that cannot be used, e.g. a results folder to compare (:data:`EXIT_INPUT`)."""
 
 
 def error(message: str) -> None:

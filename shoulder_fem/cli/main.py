@@ -22,12 +22,11 @@ from pathlib import Path
 
 from shoulder_fem import __version__
 from shoulder_fem.cli.args import add_run_arguments
+from shoulder_fem.cli.commands import EXIT_INPUT, EXIT_SOLVER
 from shoulder_fem.cli.mesh import add_mesh_parser
 
 logger = logging.getLogger("shoulder_fem")
 
-EXIT_INPUT = 2
-EXIT_SOLVER = 3
 EXIT_INTERRUPTED = 128 + signal.SIGINT  # 130, the shell's status for Ctrl-C
 EXIT_TERMINATED = 128 + signal.SIGTERM  # 143, the shell's status for a process ended by SIGTERM
 
@@ -67,12 +66,10 @@ def _watch_sigterm_under_mpi(started: float, args) -> None:
         return
 
     def stop(signum, frame) -> None:
-        from shoulder_fem.cli import commands
         from shoulder_fem.io.output import abort_open_outputs
 
         abort_open_outputs()
-        remove_unfinished_forms(started)
-        commands.error(f"stopped by SIGTERM{_what_was_kept(args)}")
+        _say_stopped("stopped by SIGTERM", started, args)
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(EXIT_TERMINATED)
@@ -223,6 +220,14 @@ def remove_unfinished_forms(since: float) -> list[Path]:
     return removed
 
 
+def _say_stopped(how: str, started: float, args) -> None:
+    """A stopped command's clean-up of the form cache and its one line (what became of --out)."""
+    from shoulder_fem.cli import commands
+
+    remove_unfinished_forms(started)
+    commands.error(f"{how}{_what_was_kept(args)}")
+
+
 def _what_was_kept(args) -> str:
     """The end of the message of a stopped command: what happened to its output."""
     out = getattr(args, "out", None)
@@ -285,10 +290,8 @@ def main(argv: list[str] | None = None) -> int:
         commands.error(str(err))
         return EXIT_SOLVER
     except _Terminated:
-        remove_unfinished_forms(started)
-        commands.error(f"stopped by SIGTERM{_what_was_kept(args)}")
+        _say_stopped("stopped by SIGTERM", started, args)
         return EXIT_TERMINATED
     except KeyboardInterrupt:
-        remove_unfinished_forms(started)
-        commands.error(f"interrupted (Ctrl-C){_what_was_kept(args)}")
+        _say_stopped("interrupted (Ctrl-C)", started, args)
         return EXIT_INTERRUPTED

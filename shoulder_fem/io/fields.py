@@ -65,10 +65,9 @@ def _write_failed(path: Path, what: str, err: Exception) -> Exception:
     import re
     import shutil
 
-    _HDF5_FAILED.append(True)
-
     from shoulder_fem.io.output import OutputError
 
+    _HDF5_FAILED.append(True)
     try:
         free = f"{shutil.disk_usage(path.parent).free / 1e6:.1f} MB free there"
     except OSError:

@@ -67,12 +67,14 @@ class Probe:
             out[name] = -self.comm.allreduce(f, op=MPI.SUM)
         return out
 
-    def glenoid(self) -> tuple[np.ndarray, np.ndarray]:
-        """Nodal contact pressure and shear (Pa) at the glenoid points (gathered on every rank)."""
-        p, t = self.contact.pressure_fields()
+    def glenoid(self, pressure, shear) -> tuple[np.ndarray, np.ndarray]:
+        """Nodal contact pressure and shear (Pa) at the glenoid points (gathered on every rank).
+
+        ``pressure``, ``shear``: the contact's nodal fields (:meth:`Contact.pressure_fields`).
+        """
         return (
-            gather_rows(p.x.array[self._glenoid], self.comm),
-            gather_rows(t.x.array[self._glenoid], self.comm),
+            gather_rows(pressure.x.array[self._glenoid], self.comm),
+            gather_rows(shear.x.array[self._glenoid], self.comm),
         )
 
     def destroy(self) -> None:

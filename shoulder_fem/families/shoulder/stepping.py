@@ -454,7 +454,8 @@ class AngleOutputs:
         """Record the outputs at target angle ``target`` (rad)."""
         job, data = self.job, self.data
         deg = math.degrees(self.angle())
-        p, t = job.probe.glenoid()
+        pressure, shear = job.contact.pressure_fields()  # on the slave surfaces, Pa
+        p, t = job.probe.glenoid(pressure, shear)
         data["angles_deg"].append(round(math.degrees(target), 6))
         data["glenoid_pressure"].append(p)
         data["glenoid_shear"].append(t)
@@ -470,7 +471,6 @@ class AngleOutputs:
         if job.stress is not None:
             record_von_mises(self.recorder, job.stress, x, data, self.comm)
         self.u1.interpolate(job.u)
-        pressure, shear = job.contact.pressure_fields()  # on the slave surfaces, Pa
         stress = job.stress.fields() if job.stress else ()
         self.writer.write([self.u1, pressure, shear, self.body, *stress], x)
         logger.info(

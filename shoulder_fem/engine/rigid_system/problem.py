@@ -32,6 +32,7 @@ from shoulder_fem.engine.rigid_system.terms import (
 )
 from shoulder_fem.engine.so3 import exp_so3, log_so3
 from shoulder_fem.engine.solver import SolveStats
+from shoulder_fem.engine.sparse import with_entries
 from shoulder_fem.engine.springs import Spring
 
 __all__ = [
@@ -470,13 +471,14 @@ def jacobian_pattern(problem: ReducedProblem) -> PETSc.Mat:
     comm, nb, lay = problem.comm, len(problem.bodies), problem.layout
     rigid = lay.rigid_range(nb)
     if problem.fe is not None:
-        J = problem.C.duplicate(copy=True)
+        # the bodies' block (absent from C between bodies no element joins) preallocated
+        J = with_entries(problem.C, *((rigid, rigid) if comm.rank == 0 else (rigid[:0],) * 2))
         J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
     else:
         J = PETSc.Mat().createAIJ(((lay.n_local, lay.n_global),) * 2, comm=comm)
         J.setPreallocationNNZ((6 * nb, 0))
-    if comm.rank == 0 and nb:
-        J.setValues(rigid, rigid, np.zeros((6 * nb, 6 * nb)), addv=PETSc.InsertMode.ADD)
+        if comm.rank == 0 and nb:
+            J.setValues(rigid, rigid, np.zeros((6 * nb, 6 * nb)), addv=PETSc.InsertMode.ADD)
     if any(e.kind == "node" for e in problem.ends):
         terms = problem.rigid_terms(with_tangent=True)  # the blocks' positions
         zero = [(i, k, 0.0 * block) for i, k, block in terms.node_tangent]

@@ -345,7 +345,8 @@ def test_compiled_segment_kernel_equals_the_numpy_code(monkeypatch, degree):
     """The compiled segment kernel (segments.c) against the numpy code it replaces, on a block
     dragged 0.13 m over a non-matching mesh (P1 and P2; every cut shape: pieces inside a
     master triangle and crossed by its edges): the same points (pairing, weights and shape
-    functions to 1e-11), and the same consistent tangent (both central differences of step
+    functions, positions, master weights, normals, gaps and pressures to 1e-11), and the
+    same consistent tangent (both central differences of step
     1e-8 m: to 1e-9 of its largest entry, their round-off is 1.6e-12)."""
     from shoulder_fem.engine.contact import kernel
 
@@ -377,9 +378,9 @@ def test_compiled_segment_kernel_equals_the_numpy_code(monkeypatch, degree):
     (st_c, K_c), (st_n, K_n) = results
     comm = MPI.COMM_WORLD
     assert comm.allreduce(int(np.count_nonzero(st_c["active"])), op=MPI.SUM) > 20
-    for key in ("facet", "piece", "m_tri"):
-        assert np.array_equal(st_c[key], st_n[key])
-    for key in ("W", "N", "N1", "bary", "p"):
+    for key in ("facet", "piece", "m_tri", "m_idx", "active"):
+        assert np.array_equal(st_c[key], st_n[key]), key
+    for key in ("W", "N", "N1", "bary", "xq", "n", "g", "p"):
         scale = comm.allreduce(float(np.abs(st_n[key]).max(initial=0.0)), op=MPI.MAX)
         assert np.abs(st_c[key] - st_n[key]).max(initial=0.0) <= 1e-11 * scale, key
     assert np.array_equal(K_c[0], K_n[0]) and np.array_equal(K_c[1], K_n[1])  # one pattern

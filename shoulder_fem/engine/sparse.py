@@ -9,8 +9,9 @@ __all__ = ["with_entries"]
 
 
 def with_entries(C: PETSc.Mat, rows: np.ndarray, cols: np.ndarray) -> PETSc.Mat:
-    """A new AIJ matrix: C's layout and values, its pattern widened by the entries
-    ``rows`` x ``cols`` (global indices; any rank may give any) as zeros (collective).
+    """A copy of the AIJ matrix C whose pattern also holds ``rows`` x ``cols`` (collective).
+
+    The new entries (global indices; any rank may give any) are zeros; C's values are kept.
 
     Inserting entries outside an assembled AIJ matrix's pattern makes PETSc reallocate it
     whole for every full row: measured on the shoulder's part-2 Jacobian at ``paper``

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from shoulder_fem.engine.contact import kernel
 from shoulder_fem.engine.contact.pair import ContactPair, normal_pressure
 from shoulder_fem.engine.contact.points import project_on_mesh, segment_gaps
 from shoulder_fem.engine.contact.surfaces import Facets, MasterMesh
@@ -32,27 +33,37 @@ def _friction(pair: ContactPair, N, nodes, x_nodes, x_prev, dxm, n, p):
     return s, t
 
 
-def _master_gaps(pair: ContactPair, master: MasterMesh | None, pts: dict, xq: np.ndarray):
-    """Normals, gaps, master nodes and weights, contact flags and master motion at ``xq``.
+def _master_gaps(pair: ContactPair, master: MasterMesh | None, pts: dict, sl: Facets, x_nodes):
+    """Slave positions, normals, gaps, master nodes and weights and contact flags.
 
     Returns:
-        (n, g, dndx, m_idx, bary, on, dxm): dndx the analytic master's dn/dx (or None),
+        (xq, n, g, dndx, m_idx, bary, on): dndx the analytic master's dn/dx (or None),
         m_idx/bary the mesh master's nodes and weights (or None), ``on`` False for points
-        that cannot touch the master, dxm the master point's motion over the load step.
+        that cannot touch the master.
     """
     dndx, m_idx, bary = None, None, None
+    kern = kernel.load() if master is not None and "m_tri" in pts else None
+    if kern is not None:  # segment points, compiled: one pass over the points
+        xq, n, g, m_idx, bary = kern.gaps(master, pts, sl.nodes, x_nodes)
+        return xq, n, g, None, m_idx, bary, g >= -pair.search_depth
+    xq = np.einsum("qa,qai->qi", pts["N"], x_nodes[sl.nodes[pts["facet"]]])
     if master is None:
         xm, n, g, dndx = pair.master.project(xq)
         on = np.ones(len(xq), dtype=bool)
-        dxm = np.zeros_like(xq)
     else:
         if "m_tri" in pts:
             xm, n, g, m_idx, bary, on = segment_gaps(master, pts, xq)
         else:
             xm, n, g, m_idx, bary, on = project_on_mesh(pair, master, xq)
-        dxm = np.einsum("qk,qki->qi", bary, master.x[m_idx] - master.x_prev[m_idx])
         on &= g >= -pair.search_depth
-    return n, g, dndx, m_idx, bary, on, dxm
+    return xq, n, g, dndx, m_idx, bary, on
+
+
+def _master_motion(master: MasterMesh | None, m_idx, bary, nq: int) -> np.ndarray:
+    """The master point's motion over the load step (m, (q, 3); zero for a rigid master)."""
+    if master is None:
+        return np.zeros((nq, 3))
+    return np.einsum("qk,qki->qi", bary, master.x[m_idx] - master.x_prev[m_idx])
 
 
 def evaluate_pair(
@@ -84,8 +95,7 @@ def evaluate_pair(
         (segments: the slave facet's piece and the master triangle of each point, or None).
     """
     f, N = pts["facet"], pts["N"]
-    xq = np.einsum("qa,qai->qi", N, x_nodes[sl.nodes[f]])
-    n, g, dndx, m_idx, bary, on, dxm = _master_gaps(pair, master, pts, xq)
+    xq, n, g, dndx, m_idx, bary, on = _master_gaps(pair, master, pts, sl, x_nodes)
     lam = np.einsum("qa,qa->q", pts["N1"], lam[f]) if len(f) else np.zeros(0)
     p, k = normal_pressure(pair, g, lam)
     p = np.where(on, p, 0.0)
@@ -94,6 +104,7 @@ def evaluate_pair(
     t = np.zeros_like(xq)
     s = np.zeros_like(xq)
     if pair.friction > 0:
+        dxm = _master_motion(master, m_idx, bary, len(xq))
         s, t = _friction(pair, N, sl.nodes[f], x_nodes, x_prev, dxm, n, p)
     return dict(
         facet=f,

@@ -1,4 +1,4 @@
-"""The compiled segment kernel (``segments.c``): the cut and the segment tangent, pair by pair.
+"""The compiled segment kernel (``segments.c``): the cut, the gaps and the segment tangent.
 
 The numpy code of :mod:`~.points` and :mod:`~.segment_tangent` works every (slave piece,
 master triangle) pair, and every perturbed copy of one, as a row of its arrays; its temporaries
@@ -6,7 +6,9 @@ cost more than the arithmetic (measured at ``paper``, part 1: the segment tangen
 the cut 0.05 s per evaluation, 62 % of the run). ``segments.c`` does the same arithmetic one
 pair at a time. It is compiled with the system's C compiler (the one FFCx compiles the forms
 with) on first use, into dolfinx's form cache under a name that holds the source's digest, and
-loaded with cffi.
+loaded with cffi. The gaps of the cut's points (slave positions, master nodes and weights,
+normals, gaps) are one pass over the points (numpy: 2.7 s of evaluations at ``paper``, part 1;
+compiled, 0.4 s).
 
 ``SHOULDER_FEM_CONTACT_KERNEL=numpy`` selects the numpy code (the reference the tests compare
 with); without a working compiler the numpy code runs, after one warning.
@@ -39,6 +41,10 @@ void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const
                 const double *tmu, const double *ref_area, const double *lam_f, int nq,
                 const double *mu, const double *w, int augmented, double penalty,
                 double smoothing, double depth, double h, double *blk);
+void sf_gaps(long n, int nn, const long *facet, const long *snodes, const double *N,
+             const double *x, const long *t, const double *bary3, const long *index,
+             const long *parent, const double *tri_mu, const double *mx, long *m_idx,
+             double *bary, double *xq, double *nrm, double *g);
 """
 _loaded: dict[str, Kernel | None] = {}
 
@@ -175,6 +181,56 @@ class Kernel:
             _ptr(ffi, "double *", blk),
         )
         return blk
+
+    def gaps(self, master, pts, slave_nodes, x_nodes):
+        """Slave positions and the master side of segment points (``sf_gaps``).
+
+        As ``evaluate_pair``'s xq, then :func:`~.points.segment_gaps`. Returns (xq, n, g,
+        m_idx, bary).
+        """
+        ffi = self.ffi
+        c = np.ascontiguousarray
+        facet = c(pts["facet"], dtype=np.int64)
+        N = c(pts["N"], dtype=np.float64)
+        t = c(pts["m_tri"], dtype=np.int64)
+        bary3 = c(pts["bary"], dtype=np.float64)
+        snodes = c(slave_nodes, dtype=np.int64)
+        x = c(x_nodes, dtype=np.float64)
+        index = c(master.index, dtype=np.int64)
+        mx = c(master.x, dtype=np.float64)
+        n, nn = len(t), snodes.shape[1]
+        keep = []  # the arrays the pointers point into, alive through the call
+        if master.parent is not None:
+            keep = [c(master.parent, dtype=np.int64), c(master.tri_mu, dtype=np.float64)]
+            parent, tri_mu = _ptr(ffi, "long *", keep[0]), _ptr(ffi, "double *", keep[1])
+            kk = 6
+        else:
+            parent = tri_mu = ffi.NULL
+            kk = 3
+        m_idx = np.empty((n, kk), dtype=np.int64)
+        bary = np.empty((n, kk))
+        xq, nrm, g = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+        self.lib.sf_gaps(
+            n,
+            nn,
+            _ptr(ffi, "long *", facet),
+            _ptr(ffi, "long *", snodes),
+            _ptr(ffi, "double *", N),
+            _ptr(ffi, "double *", x),
+            _ptr(ffi, "long *", t),
+            _ptr(ffi, "double *", bary3),
+            _ptr(ffi, "long *", index),
+            parent,
+            tri_mu,
+            _ptr(ffi, "double *", mx),
+            _ptr(ffi, "long *", m_idx),
+            _ptr(ffi, "double *", bary),
+            _ptr(ffi, "double *", xq),
+            _ptr(ffi, "double *", nrm),
+            _ptr(ffi, "double *", g),
+        )
+        del keep
+        return xq, nrm, g, m_idx, bary
 
 
 def load() -> Kernel | None:

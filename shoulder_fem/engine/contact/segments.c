@@ -308,3 +308,63 @@ void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const
             }
     }
 }
+
+/* Slave positions and master side of n segment points (points.segment_gaps and the slave
+ * position of evaluation.evaluate_pair): the point xq = sum_a N_a x(slave node a) on its
+ * slave facet; on its master triangle t (vertices index[t], unit normal from them), the master
+ * nodes and weights (P2 master, parent != NULL: the parent facet's 6 nodes and P2 functions at
+ * the point's place in the parent, from tri_mu; else the triangle's 3 vertices and bary3) and
+ * the gap g = (xq - xm) . n. kk = 6 with a parent, else 3. */
+void sf_gaps(long n, int nn, const long *facet, const long *snodes, const double *N,
+             const double *x, const long *t, const double *bary3, const long *index,
+             const long *parent, const double *tri_mu, const double *mx, long *m_idx,
+             double *bary, double *xq, double *nrm, double *g)
+{
+    int kk = parent ? 6 : 3;
+    for (long q = 0; q < n; ++q) {
+        double p[3] = {0, 0, 0};
+        const long *sn = snodes + facet[q] * nn;
+        for (int a = 0; a < nn; ++a)
+            for (int i = 0; i < 3; ++i)
+                p[i] += N[q * nn + a] * x[3 * sn[a] + i];
+        const long *v = index + 3 * t[q];
+        const double *v0 = mx + 3 * v[0], *v1 = mx + 3 * v[1], *v2 = mx + 3 * v[2];
+        double e1[3], e2[3], c[3];
+        for (int i = 0; i < 3; ++i) {
+            e1[i] = v1[i] - v0[i];
+            e2[i] = v2[i] - v0[i];
+        }
+        cross(e1, e2, c);
+        double len = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+        if (len < 1e-300)
+            len = 1e-300;
+        for (int i = 0; i < 3; ++i)
+            c[i] /= len;
+        long *mi = m_idx + q * kk;
+        double *b = bary + q * kk;
+        const double *b3 = bary3 + 3 * q;
+        if (parent) {
+            const double *tm = tri_mu + 9 * t[q];
+            double mu[3];
+            for (int j = 0; j < 3; ++j)
+                mu[j] = b3[0] * tm[j] + b3[1] * tm[3 + j] + b3[2] * tm[6 + j];
+            p2_shape(mu, b);
+            for (int a = 0; a < 6; ++a)
+                mi[a] = parent[6 * t[q] + a];
+        } else {
+            for (int a = 0; a < 3; ++a) {
+                b[a] = b3[a];
+                mi[a] = v[a];
+            }
+        }
+        double xm[3] = {0, 0, 0};
+        for (int a = 0; a < kk; ++a)
+            for (int i = 0; i < 3; ++i)
+                xm[i] += b[a] * mx[3 * mi[a] + i];
+        for (int i = 0; i < 3; ++i) {
+            xq[3 * q + i] = p[i];
+            nrm[3 * q + i] = c[i];
+        }
+        g[q] = (p[0] - xm[0]) * c[0] + (p[1] - xm[1]) * c[1] + (p[2] - xm[2]) * c[2];
+    }
+}

@@ -22,7 +22,7 @@ setup:
 
 demo: setup
 	@mkdir -p $(dir $(DEMO_OUT))
-	$(PY) -m shoulder_fem.cli bench shoulder-internal-rotation --level $(LEVEL) --out $(DEMO_OUT)
+	$(PY) -m shoulder_fem.cli bench shoulder-internal-rotation --level $(LEVEL) --out $(DEMO_OUT) --force
 
 test: setup
 	$(PY) -m pytest -q tests

@@ -71,7 +71,7 @@ def _at_outputs(data: dict, name: str) -> dict[float, float]:
 
 def _run(scene, method: str, level: str, out: Path, comm) -> dict:
     t0 = time.perf_counter()
-    data = api.run(scene, method, level, out, comm=comm).data
+    data = api.run(scene, method, level, out, comm=comm, replace=True).data
     if data.get("status") != "ok":
         raise RuntimeError(f"{method} run {out}: {data.get('status')}: {data.get('message')}")
     log.info("%s %s: %.0f s wall", method, out.name, time.perf_counter() - t0)

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
                 s = scene.with_values(decoupled_variant=variant) if variant else scene
                 label = f"{method}{'/' + variant if variant else ''} {level}"
                 try:
-                    data = run(s, method, level, scratch / "run", comm=comm).data
+                    data = run(s, method, level, scratch / "run", comm=comm, replace=True).data
                     failed = False
                 except RunFailed as err:
                     data, failed = err.summary.data, True

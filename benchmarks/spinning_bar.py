@@ -53,7 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     summaries = {}
     for level in args.levels:
         for method in METHODS:
-            result = run(scene, method, level, runs_dir / f"{level}-{method}", comm=comm)
+            result = run(
+                scene, method, level, runs_dir / f"{level}-{method}", comm=comm, replace=True
+            )
             summaries[(level, method)] = result.data
             res = result.resources
             say(

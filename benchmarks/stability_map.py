@@ -68,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
                 time_step=dt,
                 field_outputs=1,
             )
-            ref = run(scene, "coupled", args.level, scratch / "coupled", comm=comm).data
+            ref = run(
+                scene, "coupled", args.level, scratch / "coupled", comm=comm, replace=True
+            ).data
             point = {
                 "ratio": ratio,
                 "spin_rate": rate,
@@ -87,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
                         args.level,
                         scratch / variant,
                         comm=comm,
+                        replace=True,
                     ).data
                 except RunFailed as err:
                     entry.update(diverged=True, reason=str(err))

@@ -100,6 +100,7 @@ def run(
     solver_options: dict | None = None,
     make_parents: bool = True,
     petsc_options: dict | None = None,
+    replace: bool = False,
 ) -> Result:
     """Run ``scene`` with ``method`` ("coupled" or "decoupled") and write ``out``.
 
@@ -108,7 +109,8 @@ def run(
     ``OutputError`` (both ``ValueError``) and leaves nothing behind. A solver failure writes
     the completed steps with ``status = "failed"`` and raises :class:`RunFailed`.
     ``make_parents`` creates the parent folders of ``out`` (the CLI turns it off, so that a
-    mistyped ``--out`` is an error rather than a new tree of folders).
+    mistyped ``--out`` is an error rather than a new tree of folders). A previous result in
+    ``out`` is replaced only with ``replace`` (the CLI's ``--force``); else ``OutputError``.
 
     PETSc options: ``solver_options`` (key -> value, no dash) go to the method's nonlinear
     solvers as the code's own options do (read once when a solver is set up); ``petsc_options``
@@ -134,7 +136,7 @@ def run(
     out = Path(out)
     if make_parents:
         _make_parent(out, comm)
-    with OutputDir(out, comm) as outdir:
+    with OutputDir(out, comm, replace=replace) as outdir:
         monitor = ResourceMonitor(comm, outdir.scratch)
         recorder = Recorder(comm, outdir)
         recorder.set_meta(scene=scene.name, method=method, level=level)

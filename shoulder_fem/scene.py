@@ -16,7 +16,8 @@ A scene file looks like::
     n_axial = 12
 
 Values are converted to SI on load. ``--set key=value`` overrides accept a bare number (read in
-the parameter's SI unit) or a number with a unit of the same kind (``--set spin_rate=600rpm``).
+the parameter's SI unit) or a number with a unit of the same kind (``--set spin_rate=600rpm``;
+any unit pint reads, :mod:`shoulder_fem.units`).
 Every error names the file (or ``--set``), the key, the value and the unit.
 """
 
@@ -28,38 +29,10 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from shoulder_fem.units import UnitError, si_unit, to_si
+
 SCENE_DIR = Path(__file__).parent / "scenes"
 LEVELS = ("coarse", "medium", "paper", "fine")
-
-#: unit → (SI unit, factor to SI)
-UNITS: dict[str, tuple[str, float]] = {
-    "m": ("m", 1.0),
-    "cm": ("m", 1e-2),
-    "mm": ("m", 1e-3),
-    "um": ("m", 1e-6),
-    "Pa": ("Pa", 1.0),
-    "kPa": ("Pa", 1e3),
-    "MPa": ("Pa", 1e6),
-    "GPa": ("Pa", 1e9),
-    "kg/m^3": ("kg/m^3", 1.0),
-    "g/cm^3": ("kg/m^3", 1e3),
-    "kg/m^3/HU": ("kg/m^3/HU", 1.0),
-    "s": ("s", 1.0),
-    "ms": ("s", 1e-3),
-    "rad/s": ("rad/s", 1.0),
-    "deg/s": ("rad/s", math.pi / 180.0),
-    "rpm": ("rad/s", 2.0 * math.pi / 60.0),
-    "rad": ("rad", 1.0),
-    "deg": ("rad", math.pi / 180.0),
-    "N": ("N", 1.0),
-    "kN": ("N", 1e3),
-    "N*m": ("N*m", 1.0),
-    "N/m": ("N/m", 1.0),
-    "N/mm": ("N/m", 1e3),
-    "Pa/m": ("Pa/m", 1.0),
-    "MPa/mm": ("Pa/m", 1e9),
-    "1": ("1", 1.0),
-}
 
 _BOUNDS = {
     "gt": (">", lambda v, b: v > b),
@@ -67,7 +40,7 @@ _BOUNDS = {
     "lt": ("<", lambda v, b: v < b),
     "le": ("<=", lambda v, b: v <= b),
 }
-_NUMBER_WITH_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S*)\s*$")
+_NUMBER_WITH_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
 
 class SceneError(ValueError):
@@ -137,7 +110,7 @@ class Parameter:
             return str(self.value).lower(), _bounds_text(self.bounds, 1.0, "")
         unit = self.file_unit or self.unit
         unit = "" if unit == "1" else unit  # dimensionless: the number alone
-        scale = UNITS[self.file_unit][1] if self.file_unit in UNITS else 1.0
+        scale = si_unit(self.file_unit)[1] if self.file_unit else 1.0
         return f"{self.value / scale:g} {unit}".strip(), _bounds_text(self.bounds, scale, unit)
 
     def _show(self, si_value: float) -> str:
@@ -145,7 +118,7 @@ class Parameter:
         unit = "" if self.unit == "1" else self.unit
         text = f"{si_value:g} {unit}".strip()
         if self.file_unit and self.file_unit != self.unit:
-            text += f" ({si_value / UNITS[self.file_unit][1]:g} {self.file_unit})"
+            text += f" ({si_value / si_unit(self.file_unit)[1]:g} {self.file_unit})"
         return text
 
 
@@ -254,14 +227,12 @@ def _parse_value(param: Parameter, raw: str, where: str):
     number, unit = float(match.group(1)), match.group(2)
     if not unit:
         return number
-    if unit not in UNITS:
-        raise SceneError(f"{where}: unknown unit '{unit}' (known: {', '.join(UNITS)})")
-    si_unit, factor = UNITS[unit]
-    if si_unit != param.unit:
-        raise SceneError(
-            f"{where}: unit '{unit}' is a {si_unit} unit but {param.name} is in {param.unit}"
-        )
-    return number * factor
+    if not param.unit:
+        raise SceneError(f"{where}: {param.name} is a count or a switch: it takes no unit")
+    try:
+        return to_si(number, unit, param.unit, param.name)
+    except UnitError as err:
+        raise SceneError(f"{where}: {err}") from None
 
 
 def available_scenes() -> dict[str, Path]:
@@ -331,17 +302,18 @@ def _parameter_from_spec(name: str, spec, source: str) -> Parameter:
         proto = Parameter(name, value, "", "", {}, spec.get("doc", ""), tuple(choices))
         return proto.checked(value, where)
     if isinstance(value, bool) or (isinstance(value, int) and "unit" not in spec):
-        file_unit, si_unit, factor = "", "", 1
+        file_unit, si, factor = "", "", 1
     else:
         file_unit = spec.get("unit")
         if file_unit is None:
             raise SceneError(f'{where}: value {value} has no unit (use unit = "1" if none)')
-        if file_unit not in UNITS:
-            raise SceneError(f"{where}: unknown unit '{file_unit}' (known: {', '.join(UNITS)})")
-        si_unit, factor = UNITS[file_unit]
+        try:
+            si, factor = si_unit(file_unit)
+        except UnitError as err:
+            raise SceneError(f"{where}: {err}") from None
         if not isinstance(value, int | float):
             raise SceneError(f"{where}: value {value!r} {file_unit} is not a number")
         value = float(value) * factor
     bounds = {k: spec[k] * factor for k in _BOUNDS if k in spec}
-    proto = Parameter(name, value, si_unit, file_unit, bounds, spec.get("doc", ""))
+    proto = Parameter(name, value, si, file_unit, bounds, spec.get("doc", ""))
     return proto.checked(value, where)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -16,6 +18,7 @@ import pytest
 from mpi4py import MPI
 
 from shoulder_fem.cli import EXIT_INPUT, main
+from shoulder_fem.scene import SceneError, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,7 +42,7 @@ def _leftovers(folder: Path) -> list[str]:
         ),
         (
             ["run", "spinning-bar", "--method", "coupled", "--set", "spin_rate=3mm"],
-            "unit 'mm' is a m unit but spin_rate is in rad/s",
+            "unit 'mm' ([length]) does not convert to rad/s, the unit of spin_rate",
         ),
         (
             ["run", "spinning-bar", "--method", "coupled", "--set", "outer_radius=10mm"],
@@ -551,10 +554,11 @@ def test_a_decoupled_run_outside_its_validity_says_so(tmp_path, capsys):
     assert json.loads((bar / "summary.json").read_text())["validity"] == "inside"
 
 
-def test_a_bench_or_compare_result_is_replaced_by_a_rerun(tmp_path):
-    """Every command's result folder may be replaced by the same command's rerun (a bench
-    folder holds report.json and the runs, no summary.json at its top: a rerun used to be
-    refused as "not a shoulder-fem result"); a foreign folder still is refused."""
+def test_a_result_is_replaced_only_with_force(tmp_path):
+    """A command's rerun into a folder holding a result is refused in one line (exit 2, the
+    result untouched) unless ``--force``: then it is replaced (a bench folder holds report.json
+    and the runs, no summary.json at its top: it is a result too); a foreign folder is refused
+    even with ``--force``."""
     import json
 
     out = tmp_path / "bench"
@@ -562,18 +566,22 @@ def test_a_bench_or_compare_result_is_replaced_by_a_rerun(tmp_path):
     assert main([*args, "--out", str(out)]) == 0
     first = json.loads((out / "coupled" / "summary.json").read_text())["created"]
     time.sleep(1.1)  # "created" has a resolution of one second
-    assert main([*args, "--out", str(out)]) == 0
+    assert main([*args, "--out", str(out)]) == EXIT_INPUT
+    assert json.loads((out / "coupled" / "summary.json").read_text())["created"] == first
+    assert main([*args, "--out", str(out), "--force"]) == 0
     assert json.loads((out / "coupled" / "summary.json").read_text())["created"] != first
     cmp = tmp_path / "cmp"
-    for _ in range(2):
-        assert (
-            main(["-q", "compare", str(out / "coupled"), str(out / "decoupled"), "--out", str(cmp)])
-            == 0
-        )
+    compare = ["-q", "compare", str(out / "coupled"), str(out / "decoupled"), "--out", str(cmp)]
+    assert main(compare) == 0
+    assert main(compare) == EXIT_INPUT
+    assert main([*compare, "--force"]) == 0
+    run = ["-q", "run", "spinning-bar", "--method", "coupled", "--level", "coarse"]
+    run += ["--set", "end_time=0.01", "--out", str(out / "coupled")]
+    assert main(run) == EXIT_INPUT
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
-    assert main([*args, "--out", str(foreign)]) == EXIT_INPUT
+    assert main([*args, "--out", str(foreign), "--force"]) == EXIT_INPUT
     assert (foreign / "notes.txt").read_text() == "mine"
 
 
@@ -712,3 +720,36 @@ def test_progress_with_the_time_left_on_a_terminal_only(tmp_path):
         [*cmd, str(tmp_path / "off")], dict(env, SHOULDER_FEM_PROGRESS="off")
     )
     assert "%|" not in off, off[-2000:]
+
+
+@pytest.mark.parametrize(
+    "assignment, key, expected",
+    [
+        ("spin_rate=600rpm", "spin_rate", 20 * math.pi),  # 600 turns per minute: 10 per second
+        ("spin_rate=10Hz", "spin_rate", 20 * math.pi),  # a hertz is a turn per second
+        ("spin_rate=30 rad/min", "spin_rate", 0.5),
+        ("spin_rate=180deg/s", "spin_rate", math.pi),
+        ("outer_radius=300000um", "outer_radius", 0.3),
+        ("outer_radius=30 cm", "outer_radius", 0.3),
+        ("youngs_modulus=15e3 MPa", "youngs_modulus", 15e9),
+        ("density=1.8g/cm^3", "density", 1800.0),
+    ],
+)
+def test_units_pint_reads_convert_to_si(assignment, key, expected):
+    """``--set`` values in any unit pint reads, converted by hand here (issue 23: the units
+    library replaced the hand-written table)."""
+    scene = load_scene("spinning-bar").with_overrides([assignment])
+    assert scene[key] == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "assignment, message",
+    [
+        ("poisson_ratio=17deg", "unit 'deg' ([angle]) does not convert to 1"),  # not a number
+        ("spin_rate=2kg", "unit 'kg' ([mass]) does not convert to rad/s"),
+        ("spin_rate=3 furlongs_per_foo", "unknown unit 'furlongs_per_foo'"),
+    ],
+)
+def test_units_of_another_dimension_are_refused_in_one_line(assignment, message):
+    with pytest.raises(SceneError, match=re.escape(f"--set {assignment}: {message}")):
+        load_scene("spinning-bar").with_overrides([assignment])

@@ -414,7 +414,8 @@ def test_patch_test_non_matching_meshes_and_action_reaction(degree):
     """Two blocks with non-matching interface meshes (P1 or P2) transmit a uniform pressure
     within 1 % (exact: p = E δ/(H + E/ε); the segment integration makes it exact to round-off);
     the contact force, the reaction at the lower block's base and the force on the upper
-    block's top balance to the solver tolerance."""
+    block's top balance to the solver tolerance. The nodal pressure field (ParaView's) holds
+    that pressure at every vertex of both faces, the slave's and the master's."""
     tb = TwoBlocks(degree=degree)
     delta = 1e-3
     tb.top_z.value = -delta
@@ -436,6 +437,15 @@ def test_patch_test_non_matching_meshes_and_action_reaction(degree):
     assert base + top == pytest.approx(0.0, abs=tol)
     assert -top == pytest.approx(r["force"][2], abs=tol)
     assert tb.contact.stats.pattern_merges >= 1
+    pressure, shear = tb.contact.pressure_fields()
+    n_owned = tb.contact.Q.dofmap.index_map.size_local
+    z = tb.contact.Q.tabulate_dof_coordinates()[:n_owned, 2]
+    face = pressure.x.array[:n_owned][np.isclose(z, 0.0, rtol=0, atol=1e-12)]  # the interface
+    counts = comm.allreduce(np.array([len(face), np.count_nonzero(face > 0)]), op=MPI.SUM)
+    # the two faces' vertices (non-matching meshes: (1/0.13 + 1)^2 + (1/0.2 + 1)^2 at least)
+    assert counts[0] >= 100 and counts[1] == counts[0], counts
+    assert np.allclose(face, p_exact, rtol=1e-6)
+    assert np.all(shear.x.array == 0.0)  # frictionless
 
 
 @pytest.mark.mpi

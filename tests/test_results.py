@@ -184,14 +184,20 @@ def test_output_missing_parent(comm_tmp: Path) -> None:
 
 @pytest.mark.mpi
 def test_output_replaces_previous_result(comm_tmp: Path) -> None:
-    """A previous result (has summary.json) is replaced only at commit."""
+    """A previous result (has summary.json) is refused unless ``replace`` (``--force``), and
+    then replaced only at commit."""
     final = comm_tmp / "run"
     if COMM.rank == 0:
         final.mkdir()
         (final / SUMMARY_NAME).write_text('{"old": true}')
         (final / "old_only.txt").write_text("old")
     COMM.Barrier()
-    with OutputDir(final, COMM) as out:
+    refused = r"holds a previous result \(summary.json\); give --force"
+    with pytest.raises(OutputError, match=refused):
+        OutputDir(final, COMM)
+    assert load_summary(final) == {"old": True}
+    assert sorted(os.listdir(comm_tmp)) == ["run"]
+    with OutputDir(final, COMM, replace=True) as out:
         if COMM.rank == 0:
             atomic_write_json(out.path / SUMMARY_NAME, {"new": True})
         assert load_summary(final) == {"old": True}  # old result readable until commit

@@ -26,10 +26,18 @@ def add_scene_arguments(p: argparse.ArgumentParser, example: str = "spin_rate=60
     )
 
 
+def add_out_arguments(p: argparse.ArgumentParser, what: str = "output folder") -> None:
+    """``--out`` and ``--force`` (every command that writes a folder)."""
+    p.add_argument("--out", type=Path, required=True, help=f"{what} (written atomically)")
+    p.add_argument(
+        "--force", action="store_true", help="replace a previous result in --out (else refused)"
+    )
+
+
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
-    """The scene arguments plus ``--out`` and ``--linear-solver`` (run, bench)."""
+    """The scene arguments plus ``--out``, ``--force`` and the solver's (run, bench)."""
     add_scene_arguments(p)
-    p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
+    add_out_arguments(p)
     p.add_argument(
         "--linear-solver",
         choices=["direct", "iterative"],

@@ -93,7 +93,8 @@ def cmd_bench(args) -> int:
     reuse = reusable_runs(Path(args.out), request) if args.resume else {}
     if args.resume and not reuse:
         say(f"bench --resume: no finished run of this request in {args.out}; running both")
-    with OutputDir(args.out, comm) as out:
+    # --resume continues the stopped bench in --out: that folder is meant to be replaced
+    with OutputDir(args.out, comm, replace=args.force or args.resume) as out:
         runs = {}
 
         def save_state(status: str) -> None:  # rank 0 writes OUT/bench.json

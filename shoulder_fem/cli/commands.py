@@ -103,6 +103,7 @@ def cmd_run(args) -> int:
             solver_options=options,
             make_parents=False,
             petsc_options=petsc_options(args.petsc),
+            replace=args.force,
         )
     except RunFailed as err:
         raise SolverFailure(str(err)) from err
@@ -142,7 +143,7 @@ def cmd_compare(args) -> int:
             f"compare: runs of different scenes: {args.ref} is '{ref['scene']}', "
             f"{args.other} is '{other['scene']}'"
         )
-    with OutputDir(args.out, comm) as out:
+    with OutputDir(args.out, comm, replace=args.force) as out:
         report = write_comparison(ref, other, out.path, comm)
     say(_comparison_lines(report))
     say(f"comparison: {args.out}")

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from shoulder_fem import __version__
-from shoulder_fem.cli.args import add_run_arguments
+from shoulder_fem.cli.args import add_out_arguments, add_run_arguments
 from shoulder_fem.cli.commands import EXIT_INPUT, EXIT_SOLVER
 from shoulder_fem.cli.mesh import add_mesh_parser
 
@@ -169,7 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="compare two runs (reference first)")
     p.add_argument("ref", type=Path, help="output folder of the reference run (coupled)")
     p.add_argument("other", type=Path, help="output folder of the other run (decoupled)")
-    p.add_argument("--out", type=Path, required=True, help="folder for metrics and figures")
+    add_out_arguments(p, "folder for metrics and figures")
 
     p = sub.add_parser("bench", help="run both methods and write the comparison report")
     p.add_argument("scene", help="built-in scene name or path to a .toml scene file")

@@ -20,7 +20,7 @@ import logging
 import time
 from pathlib import Path
 
-from shoulder_fem.cli.args import add_scene_arguments
+from shoulder_fem.cli.args import add_out_arguments, add_scene_arguments
 
 logger = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--voxel", type=float, default=1.5e-3, help="phantom voxel size in m (default 1.5e-3)"
     )
-    p.add_argument("--out", type=Path, required=True, help="output folder (written atomically)")
+    add_out_arguments(p)
     return p
 
 
@@ -86,7 +86,7 @@ def cmd_mesh(args) -> int:
             image = dens.read_ct(args.ct)
         except (OSError, ValueError) as err:
             raise SceneError(f"--ct {args.ct}: {err}") from None
-    out = OutputDir(args.out, comm)
+    out = OutputDir(args.out, comm, replace=args.force)
     with out:
         try:
             sm = sh.build_shoulder_mesh(comm, geometry, sizes, args.variant)

@@ -77,6 +77,13 @@ def _write_failed(path: Path, what: str, err: Exception) -> Exception:
     return OutputError(f"{shown}: {what} failed ({reason}; {free}): is the disk full?")
 
 
+def _lagrange_degree(u: dolfinx.fem.Function) -> int:
+    """The degree of a (vector, tensor) Lagrange function; 0 for any other element."""
+    element = u.function_space.ufl_element()
+    sub = element.sub_elements()[0] if element.num_sub_elements() else element
+    return element.degree() if sub.family() in ("Lagrange", "Q") else 0
+
+
 class FieldWriter:
     """Time series of fields in one XDMF/HDF5 file pair for ParaView (collective throughout).
 
@@ -89,6 +96,10 @@ class FieldWriter:
     at the nodes agree with a P1 interpolation to round-off). So no interpolation is done here:
     a P2 displacement is shown at the vertices, a DG0 stress per cell. Mixed-element functions
     and quadrature functions are refused (write ``w.sub(i)``, or project to DG0, instead).
+
+    A Lagrange function of degree 2 or more is also written whole, at all its nodes, to
+    ``<stem>_<name>.pvd`` (VTK's higher-order Lagrange cells, dolfinx's ``VTKFile``; ParaView
+    opens it, meshio reads its ``.vtu`` pieces): the XDMF file shows it at the vertices only.
 
     Args:
         comm: communicator of the mesh.
@@ -114,6 +125,8 @@ class FieldWriter:
         except RuntimeError as err:
             raise _write_failed(self.path, "writing the mesh", err) from None
         self._times: dict[str, list[float]] = {}
+        #: The higher-order functions' VTK series, per function name.
+        self._vtk: dict[str, object] = {}
         self._closed = False
 
     @staticmethod
@@ -162,7 +175,25 @@ class FieldWriter:
                 self._file.write_function(u, t)
             except RuntimeError as err:
                 raise _write_failed(self.path, f"writing {u.name!r} at {t:g}", err) from None
+            if _lagrange_degree(u) > 1:
+                self._write_whole(u, t)
             self._times.setdefault(u.name, []).append(t)
+
+    def _write_whole(self, u: dolfinx.fem.Function, t: float) -> None:
+        """Append a higher-order Lagrange function at all its nodes to its VTK series."""
+        from dolfinx.io import VTKFile
+
+        path = self.path.with_name(f"{self.path.stem}_{u.name}.pvd")
+        try:
+            if u.name not in self._vtk:
+                self._vtk[u.name] = VTKFile(self.comm, str(path), "w")
+            self._vtk[u.name].write_function(u, t)
+        except RuntimeError as err:
+            raise _write_failed(path, f"writing {u.name!r} at {t:g}", err) from None
+
+    def whole_files(self) -> list[Path]:
+        """The VTK series of the higher-order functions written so far."""
+        return [self.path.with_name(f"{self.path.stem}_{name}.pvd") for name in self._vtk]
 
     @property
     def times(self) -> dict[str, list[float]]:
@@ -175,6 +206,8 @@ class FieldWriter:
             self._closed = True
             try:
                 self._file.close()
+                for vtk in self._vtk.values():
+                    vtk.close()
             except RuntimeError as err:
                 raise _write_failed(self.path, "closing the file", err) from None
 

@@ -215,8 +215,11 @@ def remove_stale_partials(final: Path) -> list[Path]:
     return removed
 
 
-def _check_final(final: Path) -> str | None:
-    """Why ``final`` cannot become an output folder, or None if it can."""
+def _check_final(final: Path, replace: bool) -> str | None:
+    """Why ``final`` cannot become an output folder, or None if it can.
+
+    ``replace``: a previous shoulder-fem result in ``final`` may be replaced.
+    """
     parent = final.parent
     if not final.name or final.name in (".", ".."):
         return "not a folder name"
@@ -236,6 +239,9 @@ def _check_final(final: Path) -> str | None:
                 f"is a non-empty folder without {' or '.join(RESULT_FILES)} (not a "
                 "shoulder-fem result); refusing to replace it"
             )
+        if is_result(final) and not replace:
+            held = next(name for name in RESULT_FILES if (final / name).is_file())
+            return f"holds a previous result ({held}); give --force to replace it"
     return None
 
 
@@ -257,7 +263,8 @@ class OutputDir:
     left by runs that died (:func:`remove_stale_partials`) and creates the staging folder
     ``<final>.partial-<token>`` with a ``scratch`` folder and its owner inside; the run writes into
     :attr:`path`. :meth:`commit` renames the staging folder to ``final``, replacing a previous
-    shoulder-fem result there (a folder holding ``summary.json``); :meth:`abort` removes it.
+    shoulder-fem result there (a folder holding one of :data:`RESULT_FILES`) if ``replace``;
+    :meth:`abort` removes it.
 
     As a context manager it commits on normal exit and aborts on an exception, unless the caller
     has already committed (e.g. to keep the steps before a diverged solve readable before
@@ -266,18 +273,21 @@ class OutputDir:
     Args:
         final: the folder the results should end up in (``--out``).
         comm: the run's communicator.
+        replace: a previous shoulder-fem result in ``final`` may be replaced (``--force``).
 
     Raises:
         OutputError: on every rank, if the parent of ``final`` does not exist or is not writable,
-            or ``final`` exists and is neither empty nor a previous shoulder-fem result.
+            or ``final`` exists and is neither empty nor a previous shoulder-fem result, or is
+            one and ``replace`` is False.
     """
 
-    def __init__(self, final: Path, comm: MPI.Comm) -> None:
+    def __init__(self, final: Path, comm: MPI.Comm, replace: bool = False) -> None:
         self.comm = comm
         self.final = Path(final).expanduser().absolute()
+        self.replace = replace
         reply: tuple[str | None, str | None] = (None, None)
         if comm.rank == 0:
-            reason = _check_final(self.final)
+            reason = _check_final(self.final, replace)
             if reason is not None:
                 reply = (None, f"--out {self.final}: {reason}")
             else:
@@ -365,6 +375,8 @@ class OutputDir:
                 raise OutputError("the output path became a file or link during the run")
             if not any(final.iterdir()):
                 final.rmdir()
+            elif is_result(final) and not self.replace:
+                raise OutputError("another result was written there during the run")
             elif is_result(final):
                 trash = final.parent / f".{final.name}.trash-{self.token}"
                 os.rename(final, trash)

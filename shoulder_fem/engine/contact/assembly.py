@@ -356,9 +356,9 @@ class Contact:
                 recorder.set_probe(f"{prefix}{pair}_{key}", res[key], unit)
 
     def pressure_fields(self) -> tuple[dolfinx.fem.Function, dolfinx.fem.Function]:
-        """Nodal contact pressure and shear (Pa) on the slave surfaces, as CG1 fields.
+        """Nodal contact pressure and shear (Pa) on the slave and mesh-master surfaces (CG1).
 
         A lumped projection of the contact points' values with the facets' linear functions.
         """
         self._ensure()
-        return output.pressure_fields(self.Q, self._slaves, self._state)
+        return output.pressure_fields(self.Q, self._slaves, self._state, self._masters)

@@ -88,26 +88,55 @@ def master_points(st: dict, m: MasterMesh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pressure_fields(
-    Q: dolfinx.fem.FunctionSpace, slaves: Sequence[Facets], states: Sequence[dict]
+    Q: dolfinx.fem.FunctionSpace,
+    slaves: Sequence[Facets],
+    states: Sequence[dict],
+    masters: Sequence[MasterMesh | None] = (),
 ) -> tuple[dolfinx.fem.Function, dolfinx.fem.Function]:
-    """Nodal contact pressure and shear (Pa) on the slave surfaces, as CG1 fields on ``Q``.
+    """Nodal contact pressure and shear (Pa) on the slave and mesh-master surfaces (CG1 on Q).
 
-    A lumped projection of the contact points' values with the facets' linear functions
-    (collective).
+    A lumped projection of the contact points' values with the linear functions of the
+    facets they lie on: the slave facet's, and the master facet's (for a P2 master, its
+    parent facet's: the P2 functions at the point, each edge's value shared by its two
+    vertices, are the linear ones). Collective.
     """
     fields = []
+    comm = Q.mesh.comm
     for name, key in (("contact_pressure", "p"), ("contact_shear", "t")):
         num = dolfinx.fem.Function(Q, name=name)
         den = dolfinx.fem.Function(Q)
         for sl, st in zip(slaves, states, strict=True):
-            val = st[key] if key == "p" else np.linalg.norm(st[key], axis=1)
+            val = _point_values(st, key)
             f, N1, W = st["facet"], st["N1"], st["W"]
             np.add.at(num.x.array, sl.p1[f], val[:, None] * N1 * W[:, None])
             np.add.at(den.x.array, sl.p1[f], N1 * W[:, None])
         for fn in (num, den):
             fn.x.scatter_reverse(dolfinx.la.ScatterMode.add)
             fn.x.scatter_forward()
+        for m, st in zip(masters, states, strict=False):
+            if m is not None:  # the master's sums are global: added to owned and ghost dofs
+                m_num, m_den = _master_sums(m, st, key, comm)
+                for fn, sums in ((num, m_num), (den, m_den)):
+                    values = np.zeros_like(fn.x.array)
+                    values[m.vertex_q] = sums[m.vertex_gathered]
+                    fn.x.array[:] += values
         with np.errstate(invalid="ignore", divide="ignore"):
             num.x.array[:] = np.where(den.x.array > 0, num.x.array / den.x.array, 0.0)
         fields.append(num)
     return fields[0], fields[1]
+
+
+def _point_values(st: dict, key: str) -> np.ndarray:
+    return st[key] if key == "p" else np.linalg.norm(st[key], axis=1)
+
+
+def _master_sums(m: MasterMesh, st: dict, key: str, comm: MPI.Comm):
+    """Lumped-projection sums (value x weight, weight) on the gathered master vertices."""
+    val, W, bary, nodes = _point_values(st, key), st["W"], st["bary"], st["m_idx"]
+    if bary.shape[1] == 6:  # P2: the parent facet's linear functions from its P2 ones
+        bary = bary[:, :3] + 0.5 * bary[:, [3, 3, 4]] + 0.5 * bary[:, [5, 4, 5]]
+        nodes = nodes[:, :3]
+    num, den = np.zeros(len(m.X)), np.zeros(len(m.X))
+    np.add.at(num, nodes, val[:, None] * bary * W[:, None])
+    np.add.at(den, nodes, bary * W[:, None])
+    return comm.allreduce(num, op=MPI.SUM), comm.allreduce(den, op=MPI.SUM)

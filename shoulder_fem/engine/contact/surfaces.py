@@ -155,6 +155,9 @@ class MasterMesh:
     tri_mu: np.ndarray | None = None  # (nt, 3, 3) P2: the triangle's vertices in the parent
     x: np.ndarray | None = None  # (nm, 3) current positions
     x_prev: np.ndarray | None = None  # (nm, 3) positions at the last committed step
+    # this rank's master facet vertices: their gathered indices and local CG1 dofs
+    vertex_gathered: np.ndarray | None = None
+    vertex_q: np.ndarray | None = None
 
 
 def _rim_edges(index: np.ndarray, nm: int) -> np.ndarray:
@@ -228,6 +231,10 @@ def gather_master(V, facets: Facets, comm: MPI.Comm, node_rows: np.ndarray) -> M
         raise ContactError("master surface: a facet node is owned by no rank (mesh distribution)")
     boundary = _rim_edges(index, len(gdofs))  # rim edges: edges used by one triangle only
     master = MasterMesh(owned, index, gdofs, X, boundary, counts, rows)
+    vertices = facets.nodes[:, :3].ravel().astype(np.int32)
+    g_vertices = imap.local_to_global(vertices) if len(vertices) else np.zeros(0, np.int64)
+    master.vertex_gathered = order[np.searchsorted(gdofs[order], g_vertices)]
+    master.vertex_q = facets.p1.ravel().astype(np.int64)
     if facets.nodes.shape[1] == 6:  # P2: each flat triangle remembers its curved parent
         _add_p2_parents(master, imap, facets, comm, order, sub)
     return master

@@ -256,7 +256,14 @@ class _Part2:
         _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
         self.writer = FieldWriter(self.comm, mesh, run.fields / "part2.xdmf")
         P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
-        self.u1 = dolfinx.fem.Function(P1, name="displacement")
+        self.u1 = dolfinx.fem.Function(P1)  # at the vertices, for the global frame's fields
+        # ParaView's global-frame fields: the scapula where part 1 moved it, and its stress
+        self.u_global = dolfinx.fem.Function(P1, name="displacement_global")
+        self._X1 = P1.tabulate_dof_coordinates()
+        tensor = self.stress_vm.recovery.tensor if p.nodal_stress == "tensor" else None
+        self.stress_global = None
+        if tensor is not None:
+            self.stress_global = dolfinx.fem.Function(tensor.function_space, name="stress_global")
         self.iterations = 0
         self.worst = 0.0
 
@@ -320,8 +327,24 @@ class _Part2:
         )
         record_von_mises(rec, self.stress_vm, x, data, comm)
         self.u1.interpolate(self.u)
-        self.writer.write([self.u1, *self.stress_vm.fields()], x)
+        self.writer.write([self.u, *self.stress_vm.fields(), *self._global_fields(k)], x)
         self.u_prev.x.array[:] = self.u.x.array
+
+    def _global_fields(self, k: int) -> list:
+        """Output ``k``'s displacement and stress in the global frame (at the last update).
+
+        A point X of the floating frame, displaced by u there, is at
+        x = ref + T + R (X + u - ref) (part 1's rigid motion T, R of the scapula); the stress
+        turns as R σ Rᵀ.
+        """
+        R, T, X = self.R[k], self.T[k], self._X1
+        x = self.ref + T + (X + self.u1.x.array.reshape(-1, 3) - self.ref) @ R.T
+        self.u_global.x.array[:] = (x - X).ravel()
+        if self.stress_global is None:
+            return [self.u_global]
+        sig = self.stress_vm.recovery.tensor.x.array.reshape(-1, 3, 3)
+        self.stress_global.x.array[:] = np.einsum("ij,njk,lk->nil", R, sig, R).ravel()
+        return [self.u_global, self.stress_global]
 
     def finish(self) -> None:
         """Record the probes and counters, free the solver."""

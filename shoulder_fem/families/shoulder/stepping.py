@@ -430,9 +430,8 @@ class AngleOutputs:
         self.cap_centre, self.cap_axis, self.cap_half = model.info["humeral_cap"]
         self.data = {"angles_deg": [], "glenoid_pressure": [], "glenoid_shear": []}
         mesh = job.u.function_space.mesh
+        # the P2 displacement: at the vertices in the XDMF file, whole in <label>_displacement.pvd
         self.writer = FieldWriter(self.comm, mesh, fields_dir / f"{job.label}.xdmf")
-        P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
-        self.u1 = dolfinx.fem.Function(P1, name="displacement")
         # the body of every cell (its cell tag: meshes.shoulder's markers), for ParaView
         self.body = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)), name="body")
         tags = job.probe.cell_tags
@@ -470,9 +469,8 @@ class AngleOutputs:
             job.on_output(target)
         if job.stress is not None:
             record_von_mises(self.recorder, job.stress, x, data, self.comm)
-        self.u1.interpolate(job.u)
         stress = job.stress.fields() if job.stress else ()
-        self.writer.write([self.u1, pressure, shear, self.body, *stress], x)
+        self.writer.write([job.u, pressure, shear, self.body, *stress], x)
         logger.info(
             "%s: output at %.0f deg (measured %.3f deg), max pressure %.3f MPa",
             job.label,

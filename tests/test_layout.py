@@ -161,12 +161,13 @@ def test_every_package_is_installed():
 ALLOWED = {
     "forms": {"forms"},
     "meshes": {"meshes", "forms"},
-    "scene": {"scene"},
+    "units": {"units"},
+    "scene": {"scene", "units"},
     "engine": {"engine", "forms", "meshes"},
     "io": {"io", "forms", "meshes"},
-    "families": {"families", "engine", "io", "forms", "meshes", "scene"},
-    "api": {"api", "families", "io", "engine", "scene"},
-    "cli": {"cli", "api", "families", "io", "engine", "scene", "meshes"},
+    "families": {"families", "engine", "io", "forms", "meshes", "scene", "units"},
+    "api": {"api", "families", "io", "engine", "scene", "units"},
+    "cli": {"cli", "api", "families", "io", "engine", "scene", "meshes", "units"},
 }
 
 

@@ -158,6 +158,8 @@ class MasterMesh:
     # this rank's master facet vertices: their gathered indices and local CG1 dofs
     vertex_gathered: np.ndarray | None = None
     vertex_q: np.ndarray | None = None
+    # (nm,) ∫ φ dA of each gathered vertex's linear function over the master (reference, m²)
+    lumped_area: np.ndarray | None = None
 
 
 def _rim_edges(index: np.ndarray, nm: int) -> np.ndarray:
@@ -237,4 +239,22 @@ def gather_master(V, facets: Facets, comm: MPI.Comm, node_rows: np.ndarray) -> M
     master.vertex_q = facets.p1.ravel().astype(np.int64)
     if facets.nodes.shape[1] == 6:  # P2: each flat triangle remembers its curved parent
         _add_p2_parents(master, imap, facets, comm, order, sub)
+    master.lumped_area = _lumped_area(master)
     return master
+
+
+def _lumped_area(m: MasterMesh) -> np.ndarray:
+    """The lumped area ∫ φ_a dA (reference, m²) of each gathered master vertex.
+
+    φ_a: the vertex's linear function on the master's flat triangles; for a P2 master, on its
+    parent facets (exact from the sub-triangles' vertices).
+    """
+    e1 = m.X[m.index[:, 1]] - m.X[m.index[:, 0]]
+    e2 = m.X[m.index[:, 2]] - m.X[m.index[:, 0]]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    lumped = np.zeros(len(m.X))
+    if m.parent is None:
+        np.add.at(lumped, m.index, np.repeat(area[:, None] / 3.0, 3, axis=1))
+    else:  # a linear function integrates to the area times its mean at the vertices
+        np.add.at(lumped, m.parent[:, :3], area[:, None] * m.tri_mu.mean(axis=1))
+    return lumped

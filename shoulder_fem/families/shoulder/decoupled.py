@@ -166,13 +166,16 @@ def part1_ties(ft, cell_tags, params: ShoulderParameters) -> tuple[list[Tie], di
     return ties, tied
 
 
-#: Part 1's own solver options: MUMPS with the QAMD ordering (ICNTL(7) = 6). Measured at
-#: ``paper``, part 1's LU time over 0-60 deg: 9.5 s with MUMPS's automatic choice, 7.8 s with
-#: QAMD, 7.8 AMF (2), 7.9 AMD (0), 9.1 METIS (5), 9.1 PORD (4), 9.2 SCOTCH (3); the same
-#: iterations. (The rigid bodies' rows couple to every tied node: AMD-like orderings suit
-#: them.) Not the coupled run's: QAMD made its LU 31 % slower at ``medium`` (52.8 s against
-#: 40.2) and its peak memory 19 % higher.
-PART1_OPTIONS = {"mat_mumps_icntl_7": 6}
+#: Part 1's own solver options: MUMPS with the QAMD ordering (ICNTL(7) = 6) and without its
+#: automatic scaling (ICNTL(8) = 0). Measured at ``paper``, part 1's LU time over 0-60 deg:
+#: 9.5 s with MUMPS's automatic ordering, 7.8 s with QAMD, 7.8 AMF (2), 7.9 AMD (0), 9.1 METIS
+#: (5), 9.1 PORD (4), 9.2 SCOTCH (3); then 7.7-8.0 s scaled, 6.8-7.0 s unscaled (two runs
+#: each); the same iterations, results within 1e-14. (The rigid bodies' rows couple to every
+#: tied node: AMD-like orderings suit them.) Not the coupled run's: QAMD made its LU 31 %
+#: slower at ``medium`` (52.8 s against 40.2) and its peak memory 19 % higher; unscaled, its
+#: LU took 35.2 s against 42.9 at ``medium`` but 236.1 against 229.9 at ``paper`` (the level
+#: of the study), so it keeps MUMPS's choices.
+PART1_OPTIONS = {"mat_mumps_icntl_7": 6, "mat_mumps_icntl_8": 0}
 
 
 def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tuple[dict, Transfer]:

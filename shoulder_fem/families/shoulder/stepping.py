@@ -78,16 +78,11 @@ ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 #: ``l2`` everywhere is 3-5 times slower in the coupled solve (residual decrease ~0.9 per
 #: iteration from the first step on; ``bt`` and ``cp`` too; ``bt`` as the fallback failed the
 #: first step at ``paper`` in 60 iterations).
-#: The angle-controlled steps' Newton options (both methods' joint solves). MUMPS without its
-#: automatic scaling (ICNTL(8) = 0): measured over 0-60 deg, the coupled run's LU at ``medium``
-#: 42.9 -> 35.2 s and part 1's at ``paper`` 7.8-8.0 -> 6.8-7.0 s, the same Newton iterations
-#: and results within 4e-8 (the Newton tolerance).
 SNES_OPTIONS = {
     "snes_rtol": 1e-8,
     "snes_atol": 1e-3,
     "snes_max_it": 15,
     "snes_linesearch_type": "basic",
-    "mat_mumps_icntl_8": 0,
 }
 FALLBACK_LINESEARCH = "l2"
 FALLBACK_MAX_IT = 60

@@ -753,3 +753,32 @@ def test_units_pint_reads_convert_to_si(assignment, key, expected):
 def test_units_of_another_dimension_are_refused_in_one_line(assignment, message):
     with pytest.raises(SceneError, match=re.escape(f"--set {assignment}: {message}")):
         load_scene("spinning-bar").with_overrides([assignment])
+
+
+def test_mesh_files_read_back_with_h5py(tmp_path):
+    """``mesh.xdmf`` holds three grids (the mesh, its cell tags, its facet tags), which meshio 5
+    cannot open (one grid only) and ParaView can; its HDF5 file read with h5py: every cell
+    tagged with its body, as many cells per body as mesh.json counts (issue 23)."""
+    import json
+
+    import h5py
+    import numpy as np
+
+    out = tmp_path / "mesh"
+    assert (
+        main(["-q", "mesh", "shoulder-internal-rotation", "--level", "coarse", "--out", str(out)])
+        == 0
+    )
+    stats = json.loads((out / "mesh.json").read_text())
+    with h5py.File(out / "mesh.h5", "r") as h5:
+        cells = h5["Mesh/mesh/topology"][:]
+        tagged = h5["MeshTags/Cell tags/topology"][:]
+        tags = h5["MeshTags/Cell tags/Values"][:].ravel().astype(int)
+        facets = h5["MeshTags/Facet tags/Values"][:].ravel().astype(int)
+        assert len(h5["Mesh/mesh/geometry"]) == stats["totals"]["vertices"]
+    assert len(cells) == len(tagged) == stats["totals"]["cells"]
+    for name, body in stats["bodies"].items():
+        marker = stats["markers"][name]["id"]
+        assert np.count_nonzero(tags == marker) == body["cells"], name
+    surfaces = {m["id"] for m in stats["markers"].values() if m["dim"] == 2}
+    assert set(np.unique(facets)) <= surfaces and len(set(np.unique(facets))) > 5

@@ -89,6 +89,12 @@ def _ptr(ffi, ctype: str, a: np.ndarray):
     return ffi.cast(ctype, a.ctypes.data)
 
 
+def _ptrs(ffi, *arrays: np.ndarray) -> list:
+    """C pointers to contiguous int64 (``long *``) or float64 (``double *``) arrays."""
+    kinds = {np.dtype(np.int64): "long *", np.dtype(np.float64): "double *"}
+    return [_ptr(ffi, kinds[a.dtype], a) for a in arrays]
+
+
 class Kernel:
     """The loaded library (:func:`load`)."""
 
@@ -210,25 +216,9 @@ class Kernel:
         m_idx = np.empty((n, kk), dtype=np.int64)
         bary = np.empty((n, kk))
         xq, nrm, g = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
-        self.lib.sf_gaps(
-            n,
-            nn,
-            _ptr(ffi, "long *", facet),
-            _ptr(ffi, "long *", snodes),
-            _ptr(ffi, "double *", N),
-            _ptr(ffi, "double *", x),
-            _ptr(ffi, "long *", t),
-            _ptr(ffi, "double *", bary3),
-            _ptr(ffi, "long *", index),
-            parent,
-            tri_mu,
-            _ptr(ffi, "double *", mx),
-            _ptr(ffi, "long *", m_idx),
-            _ptr(ffi, "double *", bary),
-            _ptr(ffi, "double *", xq),
-            _ptr(ffi, "double *", nrm),
-            _ptr(ffi, "double *", g),
-        )
+        inputs = _ptrs(ffi, facet, snodes, N, x, t, bary3, index)
+        outputs = _ptrs(ffi, mx, m_idx, bary, xq, nrm, g)
+        self.lib.sf_gaps(n, nn, *inputs, parent, tri_mu, *outputs)
         del keep
         return xq, nrm, g, m_idx, bary
 

@@ -16,8 +16,8 @@ def with_entries(C: PETSc.Mat, rows: np.ndarray, cols: np.ndarray) -> PETSc.Mat:
     Inserting entries outside an assembled AIJ matrix's pattern makes PETSc reallocate it
     whole for every full row: measured on the shoulder's part-2 Jacobian at ``paper``
     (30k unknowns), 0.7 s for the bodies' 12 x 12 block. Here PETSc counts the union's
-    entries row by row and fills an exactly preallocated matrix (one copy of C held beside
-    it, no other temporary). C's stored zeros stay stored.
+    entries row by row and fills an exactly preallocated matrix (for a moment two copies of
+    C beside it: the duplicate and the merged matrix). C's stored zeros stay stored.
     """
     rows = np.asarray(rows, dtype=PETSc.IntType)
     cols = np.asarray(cols, dtype=PETSc.IntType)

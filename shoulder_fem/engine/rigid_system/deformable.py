@@ -91,8 +91,8 @@ class DeformablePart:
         every entry's column, BAIJ's a block's). K is the first conversion's own matrix: a
         reused conversion into a matrix made otherwise misplaced off-process columns under
         MPI (measured, 2 ranks). The block matrix is kept from the second assembly on: a
-        linear problem assembles once and does not hold both copies through its
-        factorization (part 2 at ``paper``: +70 MB of peak memory if it did).
+        linear problem assembles once and does not hold a second copy of its tangent through
+        its factorization.
         """
         constants = dolfinx.cpp.fem.pack_constants(self.J_form)
         coefficients = dolfinx.cpp.fem.pack_coefficients(self.J_form)

@@ -11,17 +11,14 @@ where it matters: in the soft sliding mode of a joint (the humerus turning in it
 was half of the contact's tangent along the Newton step, which made Newton converge linearly
 (rate 0.5-0.6 per iteration, measured on the shoulder's part 1).
 
-Here the tangent of each contributing (slave piece, master triangle) pair is the forward
+Here the tangent of each contributing (slave piece, master triangle) pair is the central
 difference of the pair's exact nodal forces (the same cutting and rule as the residual,
 :mod:`~.points`, :mod:`~.evaluation`) in the coordinates of its nodes: the slave facet's and
 the master facet's (3 or 6 each). The pairs are independent and small, so the differences are
-taken for all of them and all their node coordinates in one evaluation (3 x 12 perturbed
-copies of every pair for P2). Measured at coarse: the tangent's error along the Newton step
-was 2e-6 of the residual with central differences (5e-1 before), and the residual fell 3.4e-3,
-3.4e-5, 3.1e-11 N at the end of a step; forward differences (half the cuts: the contact
-tangent at ``paper`` 0.7-1.2 s faster over part 1) end the same histories at 9e-11 and 4.6e-11
-N instead of 5.2e-11 and 9.4e-11 (order 1.87 and 2.9), the same iterations, results within
-5e-10.
+taken for all of them and all their node coordinates in one evaluation (2 x 3 x 12 perturbed
+copies of every pair for P2; 0.03 s for the 38 pairs of the shoulder at coarse). Measured
+there: the tangent's error along the Newton step is 2e-6 of the residual (5e-1 before), and
+the residual falls 3.4e-3, 3.4e-5, 3.1e-11 N at the end of a step.
 """
 
 from __future__ import annotations
@@ -48,7 +45,7 @@ __all__ = [
     "segment_tangent_blocks",
 ]
 
-#: Forward-difference step (m) of the node coordinates.
+#: Central-difference step (m) of the node coordinates.
 FD_STEP = 1e-8
 #: Perturbed pair copies evaluated at once (memory bound; every pair is independent).
 CHUNK_ROWS = 2000
@@ -202,14 +199,15 @@ def segment_loads(
 
 
 def _perturbed(Ys: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    """Copies of the pairs' positions ``Ys`` (m, k, 3), one node coordinate moved by +h each.
+    """Copies of the pairs' positions ``Ys`` (m, k, 3), one node coordinate moved by +-h each.
 
-    ``nodes`` (m, q): the nodes moved, per pair. Returns (q, 3, m, k, 3).
+    ``nodes`` (m, q): the nodes moved, per pair. Returns (2, q, 3, m, k, 3): [0] +h, [1] -h.
     """
     m, q = nodes.shape
-    Yall = np.broadcast_to(Ys, (q, 3) + Ys.shape).copy()
+    Yall = np.broadcast_to(Ys, (2, q, 3) + Ys.shape).copy()
     j, i, r = np.ix_(np.arange(q), np.arange(3), np.arange(m))
-    Yall[j, i, r, nodes.T[:, None, :], i] += FD_STEP
+    Yall[0, j, i, r, nodes.T[:, None, :], i] += FD_STEP
+    Yall[1, j, i, r, nodes.T[:, None, :], i] -= FD_STEP
     return Yall
 
 
@@ -235,7 +233,7 @@ def segment_tangent_blocks(
 ):
     """The consistent tangent blocks of a segment-integrated, frictionless pair.
 
-    The differences in the coordinates of the nodes that do not move the segments'
+    The central differences in the coordinates of the nodes that do not move the segments'
     points (P2: the slave facet's nodes off the piece, the master facet's off its triangle)
     reuse the unperturbed pair's points: the same values as cutting every copy anew.
 
@@ -257,26 +255,25 @@ def segment_tangent_blocks(
         return blk, rows
     cut, others = _moved_nodes(pp, k, ns_nodes)
     blk = np.empty((M, k, 3, k, 3))
-    chunk = max(1, CHUNK_ROWS // (3 * cut.shape[1]))  # pairs per evaluation: bounds the memory
+    chunk = max(1, CHUNK_ROWS // (6 * cut.shape[1]))  # pairs per evaluation: bounds the memory
     for s in range(0, M, chunk):
         sub = pp.select(slice(s, s + chunk))
         Ys, lam_s = Y[s : s + chunk], lam[sub.facet]
         mc = len(Ys)
         D = np.empty((mc, k, 3, k, 3))  # D[pair, moved node, coordinate] = d(R of the pair)
         r = np.arange(mc)[None, None, :]
-        base_geo = segment_geometry(sub, Ys, rule, ns_nodes)
-        R0 = segment_loads(pair, base_geo, Ys, lam_s, ns_nodes)  # (mc, k, 3)
         for nodes, same_cut in ((cut[s : s + chunk], False), (others[s : s + chunk], True)):
             q = nodes.shape[1]
             if q == 0:
                 continue
-            Yall = _perturbed(Ys, nodes).reshape(-1, k, 3)  # (3q*mc, k, 3)
-            src = np.tile(np.arange(mc), 3 * q)
+            Yall = _perturbed(Ys, nodes).reshape(-1, k, 3)  # (2*3q*mc, k, 3)
+            src = np.tile(np.arange(mc), 6 * q)
             if same_cut:
-                geo = None if base_geo is None else base_geo.take(src)
+                geo = segment_geometry(sub, Ys, rule, ns_nodes)
+                geo = None if geo is None else geo.take(src)
             else:
-                geo = segment_geometry(sub.tiled(3 * q), Yall, rule, ns_nodes)
-            R = segment_loads(pair, geo, Yall, lam_s[src], ns_nodes).reshape(q, 3, mc, k, 3)
-            D[r, nodes.T[:, None, :], np.arange(3)[None, :, None]] = (R - R0) / FD_STEP
+                geo = segment_geometry(sub.tiled(6 * q), Yall, rule, ns_nodes)
+            R = segment_loads(pair, geo, Yall, lam_s[src], ns_nodes).reshape(2, q, 3, mc, k, 3)
+            D[r, nodes.T[:, None, :], np.arange(3)[None, :, None]] = (R[0] - R[1]) / (2 * FD_STEP)
         blk[s : s + chunk] = np.moveaxis(D, (1, 2), (3, 4))
     return blk, rows

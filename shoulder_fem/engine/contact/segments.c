@@ -263,7 +263,7 @@ static void pair_loads(const Law *L, const Geometry *G, const double *Y, const d
 }
 
 /* The tangent blocks of M pairs, blk (M, k, 3, k, 3) = d(R of the pair)/d(Y of the pair), by
- * forward differences of step h in every node coordinate. The nodes that move the segments'
+ * central differences of step h in every node coordinate. The nodes that move the segments'
  * points (the piece's vertices cols, the master triangle's mv) are cut anew at every copy; the
  * others keep the pair's points. Y (M,k,3), cols and mv (M,3), tmu (M,3,3) or NULL, ref_area
  * (M,), lam_f (M,3): the slave facet's multipliers at its vertices. */
@@ -287,7 +287,6 @@ void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const
             cut[ns + v[j]] = 1;
         }
         pair_geometry(&L, Ym, c, v, t, ref_area[m], &base);
-        pair_loads(&L, &base, Ym, lam_f + 3 * m, Rm);
         memcpy(Yp, Ym, 3 * k * sizeof(double));
         for (int b = 0; b < k; ++b)
             for (int j = 0; j < 3; ++j) {
@@ -299,9 +298,13 @@ void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const
                     G = &moved;
                 }
                 pair_loads(&L, G, Yp, lam_f + 3 * m, Rp);
+                Yp[3 * b + j] = y0 - h;
+                if (cut[b])
+                    pair_geometry(&L, Yp, c, v, t, ref_area[m], &moved);
+                pair_loads(&L, G, Yp, lam_f + 3 * m, Rm);
                 Yp[3 * b + j] = y0;
                 for (int a = 0; a < 3 * k; ++a)
-                    B[a * 3 * k + 3 * b + j] = (Rp[a] - Rm[a]) / h;
+                    B[a * 3 * k + 3 * b + j] = (Rp[a] - Rm[a]) / (2 * h);
             }
     }
 }

@@ -178,6 +178,8 @@ def test_part2_global_fields_put_the_scapula_where_the_coupled_run_has_it(study)
     assert scale > 1e-3  # the scapula moved by mm
     assert np.linalg.norm(d2 - d2_float, axis=1).max() > 0.5 * scale  # the frames differ
     err = np.linalg.norm(d2 - dc, axis=1).max() / scale
+    # the decoupling's own difference (measured 0.86 % of the 10.7 mm motion at coarse); a
+    # wrong frame (R for R^T, the rotation about another point) is off by tens of percent
     assert err < 0.02, err
 
     def von_mises(s):

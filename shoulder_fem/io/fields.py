@@ -99,7 +99,8 @@ class FieldWriter:
 
     A Lagrange function of degree 2 or more is also written whole, at all its nodes, to
     ``<stem>_<name>.pvd`` (VTK's higher-order Lagrange cells, dolfinx's ``VTKFile``; ParaView
-    opens it, meshio reads its ``.vtu`` pieces): the XDMF file shows it at the vertices only.
+    opens it, meshio 5 does not read its VTK XML 2.2): the XDMF file shows it at the vertices
+    only.
 
     Args:
         comm: communicator of the mesh.
@@ -190,10 +191,6 @@ class FieldWriter:
             self._vtk[u.name].write_function(u, t)
         except RuntimeError as err:
             raise _write_failed(path, f"writing {u.name!r} at {t:g}", err) from None
-
-    def whole_files(self) -> list[Path]:
-        """The VTK series of the higher-order functions written so far."""
-        return [self.path.with_name(f"{self.path.stem}_{name}.pvd") for name in self._vtk]
 
     @property
     def times(self) -> dict[str, list[float]]:

@@ -260,10 +260,10 @@ class _Part2:
         # ParaView's global-frame fields: the scapula where part 1 moved it, and its stress
         self.u_global = dolfinx.fem.Function(P1, name="displacement_global")
         self._X1 = P1.tabulate_dof_coordinates()
-        tensor = self.stress_vm.recovery.tensor if p.nodal_stress == "tensor" else None
-        self.stress_global = None
-        if tensor is not None:
-            self.stress_global = dolfinx.fem.Function(tensor.function_space, name="stress_global")
+        self.stress_global = None  # the scalar recipe has no tensor to turn
+        if p.nodal_stress == "tensor":
+            T = self.stress_vm.recovery.tensor.function_space
+            self.stress_global = dolfinx.fem.Function(T, name="stress_global")
         self.iterations = 0
         self.worst = 0.0
 

@@ -453,7 +453,7 @@ class AngleOutputs:
         """Record the outputs at target angle ``target`` (rad)."""
         job, data = self.job, self.data
         deg = math.degrees(self.angle())
-        pressure, shear = job.contact.pressure_fields()  # on the slave surfaces, Pa
+        pressure, shear = job.contact.pressure_fields()  # slave and master surfaces, Pa
         p, t = job.probe.glenoid(pressure, shear)
         data["angles_deg"].append(round(math.degrees(target), 6))
         data["glenoid_pressure"].append(p)

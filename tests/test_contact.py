@@ -346,8 +346,8 @@ def test_compiled_segment_kernel_equals_the_numpy_code(monkeypatch, degree):
     dragged 0.13 m over a non-matching mesh (P1 and P2; every cut shape: pieces inside a
     master triangle and crossed by its edges): the same points (pairing, weights and shape
     functions, positions, master weights, normals, gaps and pressures to 1e-11), and the
-    same consistent tangent (both central differences of step
-    1e-8 m: to 1e-9 of its largest entry, their round-off is 1.6e-12)."""
+    same consistent tangent (both forward differences of step 1e-8 m, central near kinks:
+    to 1e-9 of its largest entry, their round-off is 1.6e-12)."""
     from shoulder_fem.engine.contact import kernel
 
     monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "c")
@@ -387,6 +387,57 @@ def test_compiled_segment_kernel_equals_the_numpy_code(monkeypatch, degree):
     scale = comm.allreduce(float(np.abs(K_n[2]).max(initial=0.0)), op=MPI.MAX)
     assert scale > 0
     assert np.abs(K_c[2] - K_n[2]).max(initial=0.0) <= 1e-9 * scale  # measured 1.6e-12
+
+
+def test_segment_tangent_is_central_near_kinks_forward_elsewhere(monkeypatch):
+    """Where the segment tangent's difference quotient is one-sided and where central.
+
+    The cut's kink distance by hand: a unit right triangle and its copy moved by (0.25, 0.4)
+    are 0.35/sqrt(2) apart at the least (the master's vertex (0.25, 0.4) from the slave's
+    hypotenuse x + y = 1; the legs' lines are 0.25 and more from the vertices); moved by
+    (0.5, 0.5), a master vertex lies on the slave's hypotenuse: 0. The pressure law's: the
+    penalty's |g|, the augmented law's |lam - eps g| / eps, the search depth's |g + depth|.
+    A P1 pair through the compiled kernel: at a generic state its blocks are forward
+    differences (within 2e-5 of the central ones: step 1e-8 m over a 1 mm piece); with a
+    slave vertex on a master edge's line, or at zero gap, the kernel takes the central ones."""
+    from shoulder_fem.engine.contact import kernel
+    from shoulder_fem.engine.contact.geometry import cut_kink, segment_rule
+    from shoulder_fem.engine.contact.segment_tangent import FD_STEP, NEAR_KINK, kink_distance
+
+    s2 = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
+    assert cut_kink(s2, s2 + [0.25, 0.4]) == pytest.approx([0.35 / math.sqrt(2)], abs=1e-15)
+    assert cut_kink(s2, s2 + [0.5, 0.5]) == pytest.approx([0.0], abs=1e-15)
+    pen = ContactPair("p", (1,), MeshSurface((2,)), 1e7, search_depth=5e-3)
+    aug = ContactPair("a", (1,), MeshSurface((2,)), 1e7, method="augmented")
+    g = np.array([-2e-3, 1e-3, -4.9e-3])
+    assert np.allclose(kink_distance(pen, g, np.zeros(3)), [2e-3, 1e-3, 1e-4], atol=1e-15)
+    assert np.allclose(kink_distance(aug, g, np.full(3, 1e4)), [3e-3, 0.0, 5.9e-3], atol=1e-15)
+
+    monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "c")
+    kern = kernel.load()
+    if kern is None:
+        pytest.fail("the segment kernel did not compile (see the warning)")
+    rule = segment_rule(2)
+    slave = np.array([[0.0, 0.0, 0.0], [1e-3, 0.0, 0.0], [0.0, 1e-3, 0.0]])
+    master = np.array([[-3e-4, -2e-4, 0.0], [1.7e-3, -1e-4, 0.0], [-1e-4, 1.6e-3, 0.0]])
+
+    def blocks(shift, gap, near):
+        Y = np.concatenate([slave, master + [*shift, gap]])[None]  # slave above: pressed in
+        Y[0, 3:, 2] += 1e-4 * Y[0, 3:, 0]  # a tilted master: its normal off the slave's
+        one = np.arange(3)[None]
+        args = (pen, Y, one, one, None, np.array([5e-7]), np.zeros((1, 3)), rule, 3, FD_STEP)
+        return kern.tangent(*args, near)
+
+    generic = (0.0, 0.0), 2e-5
+    blk, central = blocks(*generic, NEAR_KINK)
+    ref, _ = blocks(*generic, np.inf)
+    assert not central[0] and np.abs(blk).max() > 0
+    assert not np.array_equal(blk, ref)  # forward differences, ...
+    # ... of the same tangent: a forward quotient is off by O(h / size) = 1e-5 (measured 5e-6)
+    assert np.abs(blk - ref).max() <= 2e-5 * np.abs(ref).max()
+    on_edge = (0.0, 2e-4), 2e-5  # the master's first edge along y = 0: the slave's leg's line
+    assert blocks(*on_edge, NEAR_KINK)[1][0]
+    assert blocks((0.0, 0.0), -3e-4 * 1e-4, NEAR_KINK)[1][0]  # a point at zero gap
 
 
 def test_segment_kernel_without_a_compiler_falls_back_to_numpy(monkeypatch, tmp_path, caplog):

@@ -221,6 +221,26 @@ def overlap_polygons(P: np.ndarray, ns: np.ndarray, tri: np.ndarray):
     return s2, m2, poly, cnt
 
 
+def cut_kink(s2: np.ndarray, m2: np.ndarray) -> np.ndarray:
+    """The distance of a vertex of either 2D triangle from the line of an edge of the other.
+
+    ``s2``, ``m2`` (M, 3, 2) as :func:`overlap_polygons` returns them. Where it is zero the
+    overlap polygon changes shape (a vertex crosses an edge's line): the cut's kinks.
+    Returns (M,).
+    """
+    d = np.full(len(s2), np.inf)
+    for E, V in ((s2, m2), (m2, s2)):
+        for e in range(3):
+            a, b = E[:, e], E[:, (e + 1) % 3]
+            ex, ey = (b - a).T
+            side = ex[:, None] * (V[..., 1] - a[:, None, 1]) - ey[:, None] * (
+                V[..., 0] - a[:, None, 0]
+            )
+            dist = np.abs(side).min(axis=1) / np.hypot(ex, ey)
+            d = np.minimum(d, dist)
+    return d
+
+
 def fan_rule(poly: np.ndarray, cnt: np.ndarray, s2: np.ndarray, rule):
     """A rule on every convex polygon, applied on the triangles of its fan.
 

@@ -40,7 +40,8 @@ long sf_cut(long M, const double *P, const double *ns, const double *T, int nq,
 void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const long *mv,
                 const double *tmu, const double *ref_area, const double *lam_f, int nq,
                 const double *mu, const double *w, int augmented, double penalty,
-                double smoothing, double depth, double h, double *blk);
+                double smoothing, double depth, double h, double near, double *blk,
+                char *central);
 void sf_gaps(long n, int nn, const long *facet, const long *snodes, const double *N,
              const double *x, const long *t, const double *bary3, const long *index,
              const long *parent, const double *tri_mu, const double *mx, long *m_idx,
@@ -144,10 +145,12 @@ class Kernel:
                 return rr[:n], lam[:n], beta[:n], W[:n]
             cap = n
 
-    def tangent(self, pair, Y, cols, m_vert, tri_mu, ref_area, lam_f, rule, ns_nodes, h):
+    def tangent(self, pair, Y, cols, m_vert, tri_mu, ref_area, lam_f, rule, ns_nodes, h, near):
         """Tangent blocks (M, k, 3, k, 3) of pairs at node positions ``Y`` (M, k, 3).
 
-        The arguments as :func:`~.segment_tangent.segment_tangent_blocks` holds them.
+        The arguments as :func:`~.segment_tangent.segment_tangent_blocks` holds them; ``h``
+        the difference step, ``near`` the kink distance under which a pair's are central.
+        Returns (blk, central (M,) bool).
         """
         ffi = self.ffi
         M, k = Y.shape[:2]
@@ -166,6 +169,7 @@ class Kernel:
         if len(w) > 16 or k > 12:
             raise ValueError(f"segment tangent: {len(w)} rule points, {k} nodes per pair")
         blk = np.empty((M, k, 3, k, 3))
+        central = np.zeros(M, dtype=np.uint8)
         self.lib.sf_tangent(
             M,
             ns_nodes,
@@ -184,9 +188,11 @@ class Kernel:
             float(pair.smoothing),
             float(pair.search_depth),
             float(h),
+            float(near),
             _ptr(ffi, "double *", blk),
+            _ptr(ffi, "char *", central),
         )
-        return blk
+        return blk, central.astype(bool)
 
     def gaps(self, master, pts, slave_nodes, x_nodes):
         """Slave positions and the master side of segment points (``sf_gaps``).

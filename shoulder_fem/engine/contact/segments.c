@@ -73,11 +73,33 @@ static int clip(const double *in, int cnt, const double *a, const double *b, dou
     return n;
 }
 
+/* The distance of a vertex of either 2D triangle (3x2 each) from the line of an edge of the
+ * other: the cut's kinks (its polygon changes shape when one crosses a line). */
+static double cut_kink(const double *s2, const double *m2)
+{
+    double d = HUGE_VAL;
+    const double *tri[2] = {s2, m2};
+    for (int o = 0; o < 2; ++o) {
+        const double *E = tri[o], *V = tri[1 - o];
+        for (int e = 0; e < 3; ++e) {
+            const double *a = E + 2 * e, *b = E + 2 * ((e + 1) % 3);
+            double ex = b[0] - a[0], ey = b[1] - a[1], l = sqrt(ex * ex + ey * ey);
+            for (int v = 0; v < 3; ++v) {
+                double dv = fabs(ex * (V[2 * v + 1] - a[1]) - ey * (V[2 * v] - a[0])) / l;
+                d = dv < d ? dv : d;
+            }
+        }
+    }
+    return d;
+}
+
 /* The points of a slave piece P (3x3, counter-clockwise about its unit normal ns) on its
  * overlap with a master triangle T (3x3): barycentric coordinates on the piece (lam) and on
- * T in its own vertex order (beta), weights as fractions of the piece's area (W). */
+ * T in its own vertex order (beta), weights as fractions of the piece's area (W); with kink
+ * not NULL, its cut_kink. */
 static int cut_pair(const double *P, const double *ns, const double *T, int nq,
-                    const double *mu, const double *w, double *lam, double *beta, double *W)
+                    const double *mu, const double *w, double *lam, double *beta, double *W,
+                    double *kink)
 {
     double e1[3], e2[3], s2[6], m2[6], mc[6], bufa[2 * MAXV], bufb[2 * MAXV];
     for (int i = 0; i < 3; ++i)
@@ -97,6 +119,8 @@ static int cut_pair(const double *P, const double *ns, const double *T, int nq,
         m2[2 * v] = dt[0] * e1[0] + dt[1] * e1[1] + dt[2] * e1[2];
         m2[2 * v + 1] = dt[0] * e2[0] + dt[1] * e2[1] + dt[2] * e2[2];
     }
+    if (kink)
+        *kink = cut_kink(s2, m2);
     double det = (m2[2] - m2[0]) * (m2[5] - m2[1]) - (m2[3] - m2[1]) * (m2[4] - m2[0]);
     memcpy(mc, m2, sizeof mc);
     if (det < 0) { /* counter-clockwise master */
@@ -142,7 +166,7 @@ long sf_cut(long M, const double *P, const double *ns, const double *T, int nq,
     if (nq > MAXQ)
         return -1;
     for (long m = 0; m < M; ++m) {
-        int q = cut_pair(P + 9 * m, ns + 3 * m, T + 9 * m, nq, mu, w, l, b, ww);
+        int q = cut_pair(P + 9 * m, ns + 3 * m, T + 9 * m, nq, mu, w, l, b, ww, NULL);
         for (int k = 0; k < q; ++k, ++total) {
             if (total >= cap)
                 continue;
@@ -168,9 +192,10 @@ typedef struct {
     double N1[3 * MAXP], N[6 * MAXP], Nm[6 * MAXP], W[MAXP], n[3];
 } Geometry;
 
-/* segment_geometry of one pair at its nodes' positions Y (k,3). */
+/* segment_geometry of one pair at its nodes' positions Y (k,3); with kink not NULL, the
+ * cut's cut_kink. */
 static void pair_geometry(const Law *L, const double *Y, const long *cols, const long *mv,
-                          const double *tmu, double ref_area, Geometry *G)
+                          const double *tmu, double ref_area, Geometry *G, double *kink)
 {
     double P[9], T[9], a[3], b[3], nsv[3], lam[3 * MAXP], beta[3 * MAXP];
     for (int v = 0; v < 3; ++v)
@@ -186,7 +211,7 @@ static void pair_geometry(const Law *L, const double *Y, const long *cols, const
     double l = sqrt(nsv[0] * nsv[0] + nsv[1] * nsv[1] + nsv[2] * nsv[2]);
     for (int i = 0; i < 3; ++i)
         nsv[i] /= l;
-    G->q = cut_pair(P, nsv, T, L->nq, L->mu, L->w, lam, beta, G->W);
+    G->q = cut_pair(P, nsv, T, L->nq, L->mu, L->w, lam, beta, G->W, kink);
     for (int k = 0; k < G->q; ++k) {
         double *N1 = G->N1 + 3 * k;
         G->W[k] *= ref_area;
@@ -233,9 +258,21 @@ static double pressure(const Law *L, double g, double lam)
     return g >= -L->depth ? p : 0.0;
 }
 
-/* segment_loads of one pair: the residual contributions R (k,3) at Y with the points G. */
+/* How far (m of gap) the argument of the pressure law is from a kink or jump of it: g = 0
+ * (plain penalty), lam - penalty g = 0 (augmented), g = -depth (the search depth). The
+ * smoothed law is C1 and has none. */
+static double kink_distance(const Law *L, double g, double lam)
+{
+    double d = fabs(g + L->depth);
+    double k = L->augmented ? fabs(lam - L->penalty * g) / L->penalty
+                            : (L->smoothing == 0.0 ? fabs(g) : d);
+    return k < d ? k : d;
+}
+
+/* segment_loads of one pair: the residual contributions R (k,3) at Y with the points G; with
+ * kink not NULL, the smallest kink_distance of its points. */
 static void pair_loads(const Law *L, const Geometry *G, const double *Y, const double *lam_f,
-                       double *R)
+                       double *R, double *kink)
 {
     int k = L->ns + L->nm;
     memset(R, 0, 3 * k * sizeof(double));
@@ -250,6 +287,10 @@ static void pair_loads(const Law *L, const Geometry *G, const double *Y, const d
                 xm[i] += Nm[b] * Y[3 * (L->ns + b) + i];
         double g = (xq[0] - xm[0]) * G->n[0] + (xq[1] - xm[1]) * G->n[1] + (xq[2] - xm[2]) * G->n[2];
         double lam = N1[0] * lam_f[0] + N1[1] * lam_f[1] + N1[2] * lam_f[2];
+        if (kink) {
+            double d = kink_distance(L, g, lam);
+            *kink = d < *kink ? d : *kink;
+        }
         double pw = pressure(L, g, lam) * G->W[q];
         if (pw == 0.0)
             continue;
@@ -263,30 +304,36 @@ static void pair_loads(const Law *L, const Geometry *G, const double *Y, const d
 }
 
 /* The tangent blocks of M pairs, blk (M, k, 3, k, 3) = d(R of the pair)/d(Y of the pair), by
- * central differences of step h in every node coordinate. The nodes that move the segments'
- * points (the piece's vertices cols, the master triangle's mv) are cut anew at every copy; the
- * others keep the pair's points. Y (M,k,3), cols and mv (M,3), tmu (M,3,3) or NULL, ref_area
- * (M,), lam_f (M,3): the slave facet's multipliers at its vertices. */
+ * forward differences of step h in every node coordinate, or central ones for a pair within
+ * near of a kink: a point's of the pressure law (kink_distance) or the cut's (cut_kink). A
+ * one-sided difference takes a kink as all or nothing. The nodes that move the segments' points (the piece's vertices
+ * cols, the master triangle's mv) are cut anew at every copy; the others keep the pair's
+ * points. Y (M,k,3), cols and mv (M,3), tmu (M,3,3) or NULL, ref_area (M,), lam_f (M,3): the
+ * slave facet's multipliers at its vertices. central (M,): set to 1 where central. */
 void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const long *mv,
                 const double *tmu, const double *ref_area, const double *lam_f, int nq,
                 const double *mu, const double *w, int augmented, double penalty,
-                double smoothing, double depth, double h, double *blk)
+                double smoothing, double depth, double h, double near, double *blk,
+                char *central)
 {
     Law L = {ns, nm, nq, mu, w, augmented, penalty, smoothing, depth};
     int k = ns + nm;
     Geometry base, moved;
-    double Yp[3 * MAXK], Rp[3 * MAXK], Rm[3 * MAXK];
+    double Yp[3 * MAXK], Rp[3 * MAXK], Rm[3 * MAXK], R0[3 * MAXK];
     for (long m = 0; m < M; ++m) {
         const double *Ym = Y + 3 * k * m;
         const long *c = cols + 3 * m, *v = mv + 3 * m;
         const double *t = tmu ? tmu + 9 * m : NULL;
         double *B = blk + 9 * k * k * m;
         int cut[MAXK] = {0};
+        double kink = HUGE_VAL;
         for (int j = 0; j < 3; ++j) {
             cut[c[j]] = 1;
             cut[ns + v[j]] = 1;
         }
-        pair_geometry(&L, Ym, c, v, t, ref_area[m], &base);
+        pair_geometry(&L, Ym, c, v, t, ref_area[m], &base, &kink);
+        pair_loads(&L, &base, Ym, lam_f + 3 * m, R0, &kink);
+        central[m] = kink < near;
         memcpy(Yp, Ym, 3 * k * sizeof(double));
         for (int b = 0; b < k; ++b)
             for (int j = 0; j < 3; ++j) {
@@ -294,27 +341,24 @@ void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const
                 const Geometry *G = &base;
                 Yp[3 * b + j] = y0 + h;
                 if (cut[b]) {
-                    pair_geometry(&L, Yp, c, v, t, ref_area[m], &moved);
+                    pair_geometry(&L, Yp, c, v, t, ref_area[m], &moved, NULL);
                     G = &moved;
                 }
-                pair_loads(&L, G, Yp, lam_f + 3 * m, Rp);
-                Yp[3 * b + j] = y0 - h;
-                if (cut[b])
-                    pair_geometry(&L, Yp, c, v, t, ref_area[m], &moved);
-                pair_loads(&L, G, Yp, lam_f + 3 * m, Rm);
+                pair_loads(&L, G, Yp, lam_f + 3 * m, Rp, NULL);
+                if (central[m]) {
+                    Yp[3 * b + j] = y0 - h;
+                    if (cut[b])
+                        pair_geometry(&L, Yp, c, v, t, ref_area[m], &moved, NULL);
+                    pair_loads(&L, G, Yp, lam_f + 3 * m, Rm, NULL);
+                }
                 Yp[3 * b + j] = y0;
                 for (int a = 0; a < 3 * k; ++a)
-                    B[a * 3 * k + 3 * b + j] = (Rp[a] - Rm[a]) / (2 * h);
+                    B[a * 3 * k + 3 * b + j] = central[m] ? (Rp[a] - Rm[a]) / (2 * h)
+                                                          : (Rp[a] - R0[a]) / h;
             }
     }
 }
 
-/* Slave positions and master side of n segment points (points.segment_gaps and the slave
- * position of evaluation.evaluate_pair): the point xq = sum_a N_a x(slave node a) on its
- * slave facet; on its master triangle t (vertices index[t], unit normal from them), the master
- * nodes and weights (P2 master, parent != NULL: the parent facet's 6 nodes and P2 functions at
- * the point's place in the parent, from tri_mu; else the triangle's 3 vertices and bary3) and
- * the gap g = (xq - xm) . n. kk = 6 with a parent, else 3. */
 void sf_gaps(long n, int nn, const long *facet, const long *snodes, const double *N,
              const double *x, const long *t, const double *bary3, const long *index,
              const long *parent, const double *tri_mu, const double *mx, long *m_idx,

@@ -399,7 +399,7 @@ def test_segment_tangent_is_central_near_kinks_forward_elsewhere(monkeypatch):
     penalty's |g|, the augmented law's |lam - eps g| / eps, the search depth's |g + depth|.
     A P1 pair through the compiled kernel: at a generic state its blocks are forward
     differences (within 2e-5 of the central ones: step 1e-8 m over a 1 mm piece); with a
-    slave vertex on a master edge's line, or at zero gap, the kernel takes the central ones."""
+    master edge on a slave edge's line, or all points at zero gap, the central ones."""
     from shoulder_fem.engine.contact import kernel
     from shoulder_fem.engine.contact.geometry import cut_kink, segment_rule
     from shoulder_fem.engine.contact.segment_tangent import FD_STEP, NEAR_KINK, kink_distance
@@ -421,23 +421,25 @@ def test_segment_tangent_is_central_near_kinks_forward_elsewhere(monkeypatch):
     slave = np.array([[0.0, 0.0, 0.0], [1e-3, 0.0, 0.0], [0.0, 1e-3, 0.0]])
     master = np.array([[-3e-4, -2e-4, 0.0], [1.7e-3, -1e-4, 0.0], [-1e-4, 1.6e-3, 0.0]])
 
-    def blocks(shift, gap, near):
-        Y = np.concatenate([slave, master + [*shift, gap]])[None]  # slave above: pressed in
-        Y[0, 3:, 2] += 1e-4 * Y[0, 3:, 0]  # a tilted master: its normal off the slave's
+    def blocks(master, lift, tilt, near):
+        # the master (normal +z) raised by lift through the slave: gap -lift
+        Y = np.concatenate([slave, master + [0.0, 0.0, lift]])[None]
+        Y[0, 3:, 2] += tilt * Y[0, 3:, 0]  # a tilted master: its normal off the slave's
         one = np.arange(3)[None]
         args = (pen, Y, one, one, None, np.array([5e-7]), np.zeros((1, 3)), rule, 3, FD_STEP)
         return kern.tangent(*args, near)
 
-    generic = (0.0, 0.0), 2e-5
-    blk, central = blocks(*generic, NEAR_KINK)
-    ref, _ = blocks(*generic, np.inf)
+    blk, central = blocks(master, 2e-5, 1e-4, NEAR_KINK)
+    ref, _ = blocks(master, 2e-5, 1e-4, np.inf)
     assert not central[0] and np.abs(blk).max() > 0
     assert not np.array_equal(blk, ref)  # forward differences, ...
     # ... of the same tangent: a forward quotient is off by O(h / size) = 1e-5 (measured 5e-6)
     assert np.abs(blk - ref).max() <= 2e-5 * np.abs(ref).max()
-    on_edge = (0.0, 2e-4), 2e-5  # the master's first edge along y = 0: the slave's leg's line
-    assert blocks(*on_edge, NEAR_KINK)[1][0]
-    assert blocks((0.0, 0.0), -3e-4 * 1e-4, NEAR_KINK)[1][0]  # a point at zero gap
+    on_edge = master.copy()
+    on_edge[:2, 1] = 0.0  # its first edge on the line of the slave's first: y = 0
+    assert blocks(on_edge, 2e-5, 1e-4, NEAR_KINK)[1][0]
+    assert blocks(master, 0.0, 0.0, NEAR_KINK)[1][0]  # parallel at zero gap
+    assert not blocks(master, 2e-5, 0.0, NEAR_KINK)[1][0]  # parallel, pressed in
 
 
 def test_segment_kernel_without_a_compiler_falls_back_to_numpy(monkeypatch, tmp_path, caplog):

@@ -106,6 +106,21 @@ def _glenoid_triangulation(xy: np.ndarray) -> mtri.Triangulation | None:
     return tri
 
 
+def _smooth_map(tri: mtri.Triangulation, values: np.ndarray, subdiv: int = 3):
+    """The nodal ``values`` on ``tri`` refined ``subdiv`` times by a C1 cubic interpolant.
+
+    Piecewise-linear contours between 13 nodes (the glenoid at ``coarse``) draw the mesh, not
+    the field; the cubic (matplotlib's "geom" kind) passes through the nodal values and is
+    clipped to their range (it can overshoot between them).
+    """
+    interp = mtri.CubicTriInterpolator(tri, values, kind="geom")
+    fine, smooth = mtri.UniformTriRefiner(tri).refine_field(
+        values, triinterpolator=interp, subdiv=subdiv
+    )
+    smooth = np.nan_to_num(np.ma.filled(smooth, 0.0), nan=0.0)
+    return fine, np.clip(smooth, values.min(), values.max())
+
+
 def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
     angles = _map_angles(list(runs.values()))
     ncols = max(len(angles), 1)
@@ -126,6 +141,7 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
             * 1e3
         )
     levels = np.linspace(0.0, 100.0, 21)  # % of the angle's maximum
+    levels[-1] += 1e-9  # the maximum itself inside the top band
     cmap = plt.get_cmap("YlOrRd")
     all_xy = np.concatenate([v for v in xy.values() if len(v)] or [np.zeros((1, 2))])
     lo, hi = all_xy.min(axis=0), all_xy.max(axis=0)
@@ -155,7 +171,7 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
             if row == 1:
                 ax.set_xlabel("anterior (mm)")
             i = angle_index(r.angles, a)
-            ax.plot(xy[m][:, 0], xy[m][:, 1], ",", color="0.75")
+            ax.plot(xy[m][:, 0], xy[m][:, 1], ".", ms=2.5, color="0.45")  # the nodes
             if i is None:
                 ax.text(
                     0.5,
@@ -170,7 +186,7 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
                 continue
             p = 100.0 * np.clip(r.arrays["glenoid_pressure"][i] * MPA / vmax, 0.0, 1.0)
             if tri is not None:
-                mappable = ax.tricontourf(tri, p, levels=levels, cmap=cmap)
+                mappable = ax.tricontourf(*_smooth_map(tri, p), levels=levels, cmap=cmap)
             else:
                 mappable = ax.scatter(
                     xy[m][:, 0], xy[m][:, 1], c=p, s=6, cmap=cmap, vmin=0, vmax=100
@@ -178,7 +194,10 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
     if mappable is not None:
         label = "contact pressure (% of the angle's maximum, both methods)"
         fig.colorbar(mappable, ax=axes, shrink=0.85, label=label)
-    fig.suptitle("Glenoid contact pressure (view along the glenoid axis)")
+    fig.suptitle(
+        "Glenoid contact pressure (view along the glenoid axis): the nodal values (dots), "
+        "interpolated between them by C1 cubics"
+    )
     save_figure(fig, path)
 
 

@@ -893,3 +893,32 @@ def test_a_jacobian_rebuilt_without_stale_contact_entries_gives_the_same_solves(
     # the rigid rows and the springs' blocks are a few hundred entries beyond the two products
     assert last["J"] <= last["fe"] + last["c"] + 0.05 * last["fe"], last
     assert grown[2][-1]["J"] > last["J"], (grown[2][-1], last)
+
+
+def test_a_stiff_contact_penalty_is_seated_by_continuation(tmp_path_factory, monkeypatch):
+    """The unloaded solve with a penalty above 5 MPa/mm: a continuation in the penalty (x 3 per
+    solve). The factors by hand; at 15 MPa/mm (which also seats directly) the continuation's
+    state is the direct solve's, to the solver's tolerance (|F| <= 1e-3 N: the joint force
+    within 1e-3 N, measured 6.5e-4 of 1.61 N); at 50 MPa/mm the direct solve fails at 0 deg
+    and the continuation seats the joint (decoupled, coarse, to 1 deg)."""
+    from shoulder_fem.families.shoulder import seating
+
+    assert seating.seating_factors(5e9) == [1.0] and seating.seating_factors(1e9) == [1.0]
+    assert np.allclose(seating.seating_factors(5e10), [0.1, 0.3, 0.9, 1.0], rtol=1e-12)
+    comm = MPI.COMM_WORLD
+    base = Path(comm.bcast(str(tmp_path_factory.mktemp("seat")), root=0))
+
+    def run(penalty: str, direct: bool, name: str):
+        monkeypatch.setattr(seating, "SEATING_PENALTY", 1e30 if direct else 5e9)
+        scene = load_scene("shoulder-internal-rotation").with_overrides(
+            [f"contact_penalty={penalty}", "final_angle=1deg"]
+        )
+        return api.run(scene, "decoupled", "coarse", base / name, comm=comm)
+
+    direct, stages = run("15MPa/mm", True, "direct"), run("15MPa/mm", False, "stages")
+    for key in ("contact_force", "subscapularis_force", "infraspinatus_force"):
+        a, b = _series(direct, key)[1], _series(stages, key)[1]
+        assert np.abs(a - b).max() <= 1e-3, (key, a, b)
+    with pytest.raises(api.RunFailed, match="0 deg"):
+        run("50MPa/mm", True, "stiff_direct")
+    assert run("50MPa/mm", False, "stiff").status == "ok"

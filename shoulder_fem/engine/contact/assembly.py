@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import dolfinx
 import numpy as np
@@ -99,6 +99,7 @@ class Contact:
         mesh_integration: str = "segments",
     ):
         self.u, self.pairs = u, list(pairs)
+        self._penalties = [p.penalty for p in self.pairs]  # each pair's own (Pa/m)
         self.comm = V.mesh.comm
         W = u.function_space
         if V.component():  # the displacement block of a mixed space (e.g. Taylor-Hood)
@@ -344,6 +345,18 @@ class Contact:
             raise ContactError(f"contact pair {name!r}: its master is not a mesh surface")
         self._ensure()
         return output.master_points(self._state[i], self._masters[i])
+
+    def scale_penalties(self, factor: float) -> None:
+        """Set every pair's penalty to ``factor`` times its own (1 gives them back).
+
+        For a continuation in the penalty (a stiff one seated from a softer one's solution);
+        the pressures are evaluated afresh at the next use.
+        """
+        if not (np.isfinite(factor) and factor > 0):
+            raise ContactError(f"penalty scale factor {factor!r}: must be finite and > 0")
+        own = zip(self.pairs, self._penalties, strict=True)
+        self.pairs = [replace(p, penalty=e * factor) for p, e in own]
+        self._last_u = None
 
     def point_state(self, index: int) -> dict:
         """Pair ``index``'s points at the last evaluation: ``xq`` (m), ``p`` (Pa), ``active``."""

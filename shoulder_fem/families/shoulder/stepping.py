@@ -34,6 +34,7 @@ from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, un
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
 from shoulder_fem.families.shoulder.outputs import record_time_split, record_von_mises
+from shoulder_fem.families.shoulder.seating import seat
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.io.results import Recorder
@@ -153,8 +154,8 @@ class AngleStepper:
         self.on_angle: Callable[[float], None] | None = None
 
     def start(self) -> None:
-        """Solve the unloaded state (the plate at rest), then control the plate by the angle."""
-        self.system.solve(step=f"{self.label} 0 deg")
+        """Seat the joint unloaded (:func:`~.seating.seat`), then control the plate by angle."""
+        seat(self.system, self.contact, f"{self.label} 0 deg")
         self.contact.commit()
         control = self.system.set_control(
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE

@@ -25,7 +25,6 @@ import numpy as np
 from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import Contact
-from shoulder_fem.engine.convergence import BestResidualTest
 from shoulder_fem.engine.progress import Progress
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
 from shoulder_fem.engine.rigid_system.control import MeasureGradient
@@ -72,12 +71,9 @@ ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 #: first step at ``paper``: the residual from 198 to 4 030 N, then 15 guarded iterations without
 #: converging; at coarse 30 -> 35 deg, likewise) the ``l2`` line search (a secant minimisation
 #: of |F|^2 along the Newton direction) converges in 4-11. So a step's solve whose residual
-#: grows beyond ``DIVERGENCE_TOLERANCE`` times its best so far
-#: (:class:`~shoulder_fem.engine.convergence.BestResidualTest`; PETSc's test takes the
-#: start, which let such a solve climb for 7-12 iterations at ``paper``), or that has not
-#: converged in ``snes_max_it`` = 15 iterations, is retried from the step's start with
-#: ``FALLBACK_LINESEARCH`` (up to ``FALLBACK_MAX_IT`` iterations, no divergence test) before
-#: the step is cut back. The
+#: grows beyond ``DIVERGENCE_TOLERANCE`` times its start, or that has not converged in
+#: ``snes_max_it`` = 15 iterations, is retried from the step's start with ``FALLBACK_LINESEARCH``
+#: (up to ``FALLBACK_MAX_IT`` iterations, no divergence test) before the step is cut back. The
 #: unloaded solve has no divergence test (its residual oscillates by 10x and more on the way
 #: while the contact seats, in some scenes).
 #: ``l2`` everywhere is 3-5 times slower in the coupled solve (residual decrease ~0.9 per
@@ -165,8 +161,7 @@ class AngleStepper:
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE
         )
         self.theta = control.target  # the unloaded state's own angle
-        self.convergence = BestResidualTest(DIVERGENCE_TOLERANCE)
-        self.system.snes.setConvergenceTest(self.convergence)
+        self.system.set_options({"snes_divergence_tolerance": DIVERGENCE_TOLERANCE})
         self.tangent = self.system.control_tangent(refresh=True)  # the first step's predictor
 
     def travel(self) -> float:
@@ -242,8 +237,9 @@ class AngleStepper:
         predict()
         system.control.target = target
         try:
-            label = f"{self.label} {math.degrees(target):.2f} deg"
-            its = _solve_with_fallback(system, label, snap, predict, self.log, self.convergence)
+            its = _solve_with_fallback(
+                system, f"{self.label} {math.degrees(target):.2f} deg", snap, predict, self.log
+            )
         except ConvergenceError as err:
             system.restore(snap)
             self.log.failed_steps += 1
@@ -346,13 +342,11 @@ def drive_rotation(
         stepper.destroy()
 
 
-def _solve_with_fallback(
-    system: RigidSystem, step: str, snap, predict, log: StepLog, test: BestResidualTest
-) -> int:
+def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: StepLog) -> int:
     """Solve; if Newton ran out of iterations, solve again with the ``FALLBACK_LINESEARCH``.
 
-    The second solve starts from ``snap`` (re-predicted by ``predict()``), without the
-    divergence test of ``test``. Returns the Newton iterations of both solves.
+    The second solve starts from ``snap`` (re-predicted by ``predict()``). Returns the Newton
+    iterations of both solves.
 
     Raises:
         ConvergenceError: Both solves failed (the reason of the second).
@@ -372,15 +366,18 @@ def _solve_with_fallback(
         system.restore(snap)
         predict()
         _, _, _, max_it = system.snes.getTolerances()
-        system.set_options(
-            {"snes_linesearch_type": FALLBACK_LINESEARCH, "snes_max_it": FALLBACK_MAX_IT}
-        )
-        test.divtol = None
+        fallback = {"snes_linesearch_type": FALLBACK_LINESEARCH, "snes_divergence_tolerance": -1.0}
+        system.set_options(fallback | {"snes_max_it": FALLBACK_MAX_IT})
         try:
             return system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search)")
         finally:
-            test.divtol = DIVERGENCE_TOLERANCE
-            system.set_options({"snes_linesearch_type": original, "snes_max_it": max_it})
+            system.set_options(
+                {
+                    "snes_linesearch_type": original,
+                    "snes_divergence_tolerance": DIVERGENCE_TOLERANCE,
+                    "snes_max_it": max_it,
+                }
+            )
 
 
 # ---- one stepping with its outputs ----------------------------------------------------------

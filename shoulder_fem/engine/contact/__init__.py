@@ -9,7 +9,7 @@ sparsity), ``segment_tangent`` (the consistent tangent of segment integration), 
 Simplices only (triangular facets of tetrahedra), P1 or P2 displacement.
 """
 
-from shoulder_fem.engine.contact.assembly import Contact, ContactStats
+from shoulder_fem.engine.contact.assembly import Contact, ContactStats, record_resultants
 from shoulder_fem.engine.contact.geometry import closest_points_on_triangles
 from shoulder_fem.engine.contact.jacobian import add_to_pattern
 from shoulder_fem.engine.contact.masters import (
@@ -33,4 +33,5 @@ __all__ = [
     "add_to_pattern",
     "closest_points_on_triangles",
     "penalty_law",
+    "record_resultants",
 ]

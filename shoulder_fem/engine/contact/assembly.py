@@ -347,13 +347,7 @@ class Contact:
         return output.master_points(self._state[i], self._masters[i])
 
     def scale_penalties(self, factor: float) -> None:
-        """Set every pair's penalty to ``factor`` times its own (1 gives them back).
-
-        For a continuation in the penalty (a stiff one seated from a softer one's solution);
-        the pressures are evaluated afresh at the next use.
-        """
-        if not (np.isfinite(factor) and factor > 0):
-            raise ContactError(f"penalty scale factor {factor!r}: must be finite and > 0")
+        """Every pair's penalty at ``factor`` x its own (a continuation; 1 gives them back)."""
         own = zip(self.pairs, self._penalties, strict=True)
         self.pairs = [replace(p, penalty=e * factor) for p, e in own]
         self._last_u = None
@@ -362,12 +356,6 @@ class Contact:
         """Pair ``index``'s points at the last evaluation: ``xq`` (m), ``p`` (Pa), ``active``."""
         return self._state[index]
 
-    def record(self, recorder, prefix: str = "", point: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
-        """Put every pair's resultants in a run's probes as ``<prefix><pair>_<name>`` (SI)."""
-        for pair, res in self.resultants(point).items():
-            for key, unit in output.RESULTANT_UNITS.items():
-                recorder.set_probe(f"{prefix}{pair}_{key}", res[key], unit)
-
     def pressure_fields(self) -> tuple[dolfinx.fem.Function, dolfinx.fem.Function]:
         """Nodal contact pressure and shear (Pa) on the slave and mesh-master surfaces (CG1).
 
@@ -375,3 +363,12 @@ class Contact:
         """
         self._ensure()
         return output.pressure_fields(self.Q, self._slaves, self._state, self._masters)
+
+
+def record_resultants(
+    contact: Contact, recorder, prefix: str = "", point: Sequence[float] = (0.0, 0.0, 0.0)
+) -> None:
+    """Put every pair's resultants in a run's probes as ``<prefix><pair>_<name>`` (SI)."""
+    for pair, res in contact.resultants(point).items():
+        for key, unit in output.RESULTANT_UNITS.items():
+            recorder.set_probe(f"{prefix}{pair}_{key}", res[key], unit)

@@ -7,6 +7,7 @@ import logging
 import dolfinx
 import numpy as np
 
+from shoulder_fem.engine.contact import record_resultants
 from shoulder_fem.engine.solver import StepperStats, march
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.hertz.model import SYMMETRY_FACTOR, HertzModel
@@ -105,7 +106,7 @@ def _record(
     recorder.set_probe("contact_area", SYMMETRY_FACTOR * res["area"], "m^2")
     recorder.set_probe("approach", problem.delta, "m")
     recorder.set_probe("max_penetration", res["max_penetration"], "m")
-    problem.contact.record(recorder, prefix="quarter_")  # the modelled quarter's resultants
+    record_resultants(problem.contact, recorder, prefix="quarter_")  # the modelled quarter's
     if theory is not None:
         recorder.set_probe("hertz_max_pressure", theory.max_pressure, "Pa")
         recorder.set_probe("hertz_contact_radius", theory.contact_radius, "m")

@@ -51,12 +51,13 @@ def seat(system: RigidSystem, contact: Contact, step: str) -> int:
             pairs' own again).
     """
     factors = seating_factors(max(p.penalty for p in contact.pairs))
-    if len(factors) > 1:
-        logger.info(
-            "%s: seated by continuation in the contact penalty (x %s)",
-            step,
-            ", ".join(f"{f:.3g}" for f in factors),
-        )
+    if len(factors) == 1:
+        return system.solve(step=step)  # the pairs untouched
+    logger.info(
+        "%s: seated by continuation in the contact penalty (x %s)",
+        step,
+        ", ".join(f"{f:.3g}" for f in factors),
+    )
     its = 0
     try:
         for f in factors:

@@ -297,6 +297,9 @@ def test_resource_monitor(comm_tmp: Path) -> None:
     # Memory: the 100 MB block shows on every rank, summed over ranks.
     assert stages["alloc"]["peak_rss_mb"] >= stages["idle"]["peak_rss_mb"] + 90 * size
     assert res["peak_rss_mb"] >= max(s["peak_rss_mb"] for s in mon.stages) - 1e-9
+    # the largest rank's own peak: at least the 100 MB block, at least the mean, at most the sum
+    peak_max = res["peak_rss_rank_max_mb"]
+    assert 90 <= peak_max and res["peak_rss_mb"] / size - 1e-9 <= peak_max <= res["peak_rss_mb"]
     if res["peak_rss_stage_reset"]:
         assert stages["idle-after"]["peak_rss_mb"] < stages["alloc"]["peak_rss_mb"] - 50 * size
 

@@ -4,7 +4,8 @@ What a run costs is part of its result (ARCHITECTURE, "Interfaces"): every ``sum
 
 * ``wall_s``: elapsed time [s], the maximum over ranks;
 * ``cpu_s``: user + system CPU time of the processes [s], summed over ranks;
-* ``peak_rss_mb``: each rank's peak resident memory, summed over ranks [MB];
+* ``peak_rss_mb``: each rank's peak resident memory, summed over ranks [MB], and
+  ``peak_rss_rank_max_mb`` the largest of them;
 * ``temp_disk_mb``: the peak size of the run's scratch folder [MB];
 * ``results_disk_mb``: the size of the output folder at the end [MB];
 
@@ -298,7 +299,10 @@ class ResourceMonitor:
                 "every rank must open the same stages in the same order"
             )
         n = len(names)
-        mx = np.array([wall] + [s["wall_s"] for s in self._local_stages], dtype=np.float64)
+        mx = np.array(
+            [wall] + [s["wall_s"] for s in self._local_stages] + [self._run_peak_kib / 1024.0],
+            dtype=np.float64,
+        )
         sm = np.array(
             [cpu, self._run_peak_kib / 1024.0, float(self._reset_ok), self.start_rss_kib / 1024.0]
             + [s["cpu_s"] for s in self._local_stages]
@@ -334,6 +338,7 @@ class ResourceMonitor:
             "wall_s": float(mx_all[0]),
             "cpu_s": float(sm_all[0]),
             "peak_rss_mb": float(sm_all[1]),
+            "peak_rss_rank_max_mb": float(mx_all[-1]),
             "start_rss_mb": float(sm_all[3]),
             "temp_disk_mb": temp_bytes / MB,
             "results_disk_mb": results_bytes / MB,

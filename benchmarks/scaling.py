@@ -1,0 +1,118 @@
+"""Benchmark: strong scaling of the shoulder study over MPI ranks (issue 22).
+
+    OMP_NUM_THREADS=1 python benchmarks/scaling.py --level paper --ranks 1 2 \
+        --out benchmarks/results
+
+For each rank count the script runs ``shoulder-fem bench shoulder-internal-rotation`` (both
+methods, the scene as it is, 0-60 deg) under ``mpirun -n N`` in a process of its own, and
+reads the two runs' ``summary.json``: wall time (the slowest rank), CPU time (summed over
+ranks), peak memory (summed, and the largest rank's own), Newton iterations, DOFs. It writes
+``scaling_<level>.json`` and ``scaling_<level>.png`` (wall time and parallel efficiency
+T_1 / (N T_N) per method, memory per rank). Every figure is measured; it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+from shoulder_fem.io.output import atomic_write_json  # noqa: E402
+from shoulder_fem.io.plots import plt, save_figure  # noqa: E402
+
+METHODS = ("coupled", "decoupled")
+
+
+def run_bench(level: str, ranks: int, out: Path) -> dict:
+    """One ``bench`` under ``mpirun -n ranks``; the two summaries' figures."""
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    cmd = [sys.executable, "-m", "shoulder_fem.cli", "bench", "shoulder-internal-rotation"]
+    cmd += ["--level", level, "--out", str(out), "--force"]
+    if ranks > 1:
+        cmd = ["mpirun", "-n", str(ranks), *cmd]
+    subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+    row = {"ranks": ranks}
+    for m in METHODS:
+        s = json.loads((out / m / "summary.json").read_text())
+        res = s["resources"]
+        row[m] = {
+            "status": s["status"],
+            "wall_s": res["wall_s"],
+            "cpu_s": res["cpu_s"],
+            "peak_rss_mb": res["peak_rss_mb"],
+            "peak_rss_rank_max_mb": res.get("peak_rss_rank_max_mb"),
+            "newton_iterations": s["solver"]["newton_iterations"],
+            "factorizations": s["solver"]["factorizations"],
+            "dofs": s.get("dofs"),
+        }
+    return row
+
+
+def efficiencies(rows: list[dict]) -> None:
+    """Add each method's speed-up T_1 / T_N and parallel efficiency T_1 / (N T_N) (wall)."""
+    base = next(r for r in rows if r["ranks"] == 1)
+    for r in rows:
+        for m in METHODS:
+            speed = base[m]["wall_s"] / r[m]["wall_s"]
+            r[m]["wall_speedup"] = speed
+            r[m]["parallel_efficiency"] = speed / r["ranks"]
+
+
+def plot(rows: list[dict], level: str, path: Path) -> None:
+    ranks = [r["ranks"] for r in rows]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), layout="constrained")
+    for m, colour in zip(METHODS, ("C0", "C3"), strict=True):
+        axes[0].plot(ranks, [r[m]["wall_s"] for r in rows], "o-", color=colour, label=m)
+        axes[1].plot(ranks, [r[m]["parallel_efficiency"] for r in rows], "o-", color=colour)
+        per_rank = [r[m]["peak_rss_rank_max_mb"] for r in rows]
+        axes[2].plot(ranks, per_rank, "o-", color=colour)
+    axes[0].set(xlabel="MPI ranks", ylabel="wall time (s)", title="wall time, 0-60 deg")
+    axes[1].set(xlabel="MPI ranks", ylabel="T1 / (N TN)", title="parallel efficiency (wall)")
+    axes[1].set_ylim(0, 1.1)
+    axes[2].set(xlabel="MPI ranks", ylabel="MB", title="peak memory of the largest rank")
+    axes[0].legend()
+    for ax in axes:
+        ax.set_xticks(ranks)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Strong scaling, shoulder study at `{level}` (both methods, one bench each)")
+    save_figure(fig, path)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--level", default="paper")
+    ap.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = ap.parse_args()
+    if 1 not in args.ranks:
+        ap.error("--ranks must include 1 (the efficiency's reference)")
+    work = Path(tempfile.mkdtemp(prefix="scaling-"))
+    try:
+        rows = [run_bench(args.level, n, work / f"n{n}") for n in sorted(args.ranks)]
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    efficiencies(rows)
+    args.out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(args.out / f"scaling_{args.level}.json", {"level": args.level, "runs": rows})
+    plot(rows, args.level, args.out / f"scaling_{args.level}.png")
+    for r in rows:
+        print(
+            r["ranks"],
+            *(
+                f"{m}: wall {r[m]['wall_s']:.1f} s, eff {r[m]['parallel_efficiency']:.2f}"
+                for m in METHODS
+            ),
+        )
+
+
+if __name__ == "__main__":
+    main()

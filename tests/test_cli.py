@@ -782,3 +782,40 @@ def test_mesh_files_read_back_with_h5py(tmp_path):
         assert np.count_nonzero(tags == marker) == body["cells"], name
     surfaces = {m["id"] for m in stats["markers"].values() if m["dim"] == 2}
     assert set(np.unique(facets)) <= surfaces and len(set(np.unique(facets))) > 5
+
+
+def test_an_error_on_one_rank_aborts_the_job_instead_of_hanging(tmp_path: Path) -> None:
+    """``mpirun -n 2``: rank 1 raises while rank 0 waits in a collective (here a barrier; in
+    a run, the next assembly). Before, rank 0 waited until the job was killed; now rank 1
+    prints its traceback with its rank and aborts the job (MPI_Abort)."""
+    import shutil
+
+    mpirun = shutil.which("mpirun")
+    if mpirun is None:
+        pytest.skip("no mpirun")
+    driver = tmp_path / "driver.py"
+    driver.write_text(
+        "import sys\n"
+        "from mpi4py import MPI\n"
+        "from shoulder_fem.cli import commands\n"
+        "from shoulder_fem.cli.main import main\n"
+        "def scenes(args):\n"
+        "    if MPI.COMM_WORLD.rank == 1:\n"
+        "        raise RuntimeError('injected fault')\n"
+        "    MPI.COMM_WORLD.Barrier()\n"
+        "commands.cmd_scenes = scenes\n"
+        "sys.exit(main(['scenes']))\n"
+    )
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    start = time.monotonic()
+    proc = subprocess.run(
+        [mpirun, "-n", "2", sys.executable, str(driver)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert proc.returncode != 0, proc.stderr
+    assert time.monotonic() - start < 60
+    assert "error on rank 1 of 2, aborting the job" in proc.stderr, proc.stderr
+    assert "RuntimeError: injected fault" in proc.stderr

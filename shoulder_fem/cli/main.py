@@ -29,6 +29,7 @@ logger = logging.getLogger("shoulder_fem")
 
 EXIT_INTERRUPTED = 128 + signal.SIGINT  # 130, the shell's status for Ctrl-C
 EXIT_TERMINATED = 128 + signal.SIGTERM  # 143, the shell's status for a process ended by SIGTERM
+EXIT_ABORTED = 70  # an unexpected error on one rank of several: the job is aborted
 
 
 class _Terminated(SystemExit):
@@ -295,3 +296,28 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         _say_stopped("interrupted (Ctrl-C)", started, args)
         return EXIT_INTERRUPTED
+    except Exception:
+        _abort_other_ranks()
+        raise
+
+
+def _abort_other_ranks() -> None:
+    """Under MPI, an unexpected error on one rank: its traceback, then MPI_Abort.
+
+    The other ranks would wait in their next collective for this one until the job's time
+    limit (on a cluster: hours of allocation, no message). The rank says which it is; a run's
+    unfinished output folder is removed by the next run into the same ``--out``.
+    """
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    if comm.size == 1:
+        return
+    import traceback
+
+    sys.stderr.write(
+        f"shoulder-fem: error on rank {comm.rank} of {comm.size}, aborting the job:\n"
+        + traceback.format_exc()
+    )
+    sys.stderr.flush()
+    comm.Abort(EXIT_ABORTED)

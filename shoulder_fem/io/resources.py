@@ -299,10 +299,8 @@ class ResourceMonitor:
                 "every rank must open the same stages in the same order"
             )
         n = len(names)
-        mx = np.array(
-            [wall] + [s["wall_s"] for s in self._local_stages] + [self._run_peak_kib / 1024.0],
-            dtype=np.float64,
-        )
+        walls = [s["wall_s"] for s in self._local_stages]
+        mx = np.array([wall, *walls, self._run_peak_kib / 1024.0], dtype=np.float64)
         sm = np.array(
             [cpu, self._run_peak_kib / 1024.0, float(self._reset_ok), self.start_rss_kib / 1024.0]
             + [s["cpu_s"] for s in self._local_stages]

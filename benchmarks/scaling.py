@@ -24,10 +24,8 @@ from pathlib import Path
 
 import matplotlib
 
-matplotlib.use("Agg")
-
-from shoulder_fem.io.output import atomic_write_json  # noqa: E402
-from shoulder_fem.io.plots import plt, save_figure  # noqa: E402
+from shoulder_fem.io.output import atomic_write_json
+from shoulder_fem.io.plots import plt, save_figure
 
 METHODS = ("coupled", "decoupled")
 
@@ -93,6 +91,7 @@ def main() -> None:
     ap.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = ap.parse_args()
+    matplotlib.use("Agg")  # figures are files
     if 1 not in args.ranks:
         ap.error("--ranks must include 1 (the efficiency's reference)")
     work = Path(tempfile.mkdtemp(prefix="scaling-"))

@@ -306,10 +306,11 @@ static void pair_loads(const Law *L, const Geometry *G, const double *Y, const d
 /* The tangent blocks of M pairs, blk (M, k, 3, k, 3) = d(R of the pair)/d(Y of the pair), by
  * forward differences of step h in every node coordinate, or central ones for a pair within
  * near of a kink: a point's of the pressure law (kink_distance) or the cut's (cut_kink). A
- * one-sided difference takes a kink as all or nothing. The nodes that move the segments' points (the piece's vertices
- * cols, the master triangle's mv) are cut anew at every copy; the others keep the pair's
- * points. Y (M,k,3), cols and mv (M,3), tmu (M,3,3) or NULL, ref_area (M,), lam_f (M,3): the
- * slave facet's multipliers at its vertices. central (M,): set to 1 where central. */
+ * one-sided difference takes a kink as all or nothing. The nodes that move the segments'
+ * points (the piece's vertices cols, the master triangle's mv) are cut anew at every copy;
+ * the others keep the pair's points. Y (M,k,3), cols and mv (M,3), tmu (M,3,3) or NULL,
+ * ref_area (M,), lam_f (M,3): the slave facet's multipliers at its vertices. central (M,): set
+ * to 1 where central. */
 void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const long *mv,
                 const double *tmu, const double *ref_area, const double *lam_f, int nq,
                 const double *mu, const double *w, int augmented, double penalty,
@@ -359,6 +360,12 @@ void sf_tangent(long M, int ns, int nm, const double *Y, const long *cols, const
     }
 }
 
+/* Slave positions and master side of n segment points (points.segment_gaps and the slave
+ * position of evaluation.evaluate_pair): the point xq = sum_a N_a x(slave node a) on its
+ * slave facet; on its master triangle t (vertices index[t], unit normal from them), the master
+ * nodes and weights (P2 master, parent != NULL: the parent facet's 6 nodes and P2 functions at
+ * the point's place in the parent, from tri_mu; else the triangle's 3 vertices and bary3) and
+ * the gap g = (xq - xm) . n. kk = 6 with a parent, else 3. */
 void sf_gaps(long n, int nn, const long *facet, const long *snodes, const double *N,
              const double *x, const long *t, const double *bary3, const long *index,
              const long *parent, const double *tri_mu, const double *mx, long *m_idx,

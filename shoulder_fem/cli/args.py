@@ -41,8 +41,10 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--linear-solver",
         choices=["direct", "iterative"],
-        default="direct",
-        help="MUMPS LU (default) or CG + GAMG with rigid-body near-nullspace",
+        default=None,
+        help="every solver of the run with MUMPS LU, or CG + GAMG with the rigid-body "
+        "near-nullspace (default: each solver's own choice, LU unless the scene asks "
+        "otherwise, e.g. the shoulder's part2_solver)",
     )
     p.add_argument(
         "--petsc",

@@ -89,6 +89,8 @@ def cmd_bench(args) -> int:
     scene, options = prepare(args)
     fam = scene_family(scene)  # both methods, before anything runs
     level = args.level or scene.default_level
+    if fam.check_bench is not None:
+        fam.check_bench(scene, level)
     request = bench_request(scene, level, args, comm.size)
     reuse = reusable_runs(Path(args.out), request) if args.resume else {}
     if args.resume and not reuse:
@@ -172,7 +174,7 @@ def _run_apart(args, method: str, folder: Path) -> dict:
     cmd = [sys.executable, "-m", "shoulder_fem.cli"]
     cmd += ["-q"] if args.quiet else ["-v"] * max(args.verbose - 1, 0)
     cmd += ["run", str(args.scene), "--method", method, "--out", str(folder)]
-    cmd += ["--linear-solver", args.linear_solver]
+    cmd += [] if args.linear_solver is None else ["--linear-solver", args.linear_solver]
     cmd += [] if args.level is None else ["--level", args.level]
     for item in args.sets:
         cmd += ["--set", item]

@@ -210,8 +210,10 @@ def iterative_solver_options(rtol: float = 1e-10) -> dict:
     }
 
 
-def linear_solver_options(kind: str) -> dict:
-    """Options for ``kind`` in {"direct", "iterative"}."""
+def linear_solver_options(kind: str | None) -> dict:
+    """Options for ``kind`` in {"direct", "iterative"}; None: none (each solver's own)."""
+    if kind is None:
+        return {}
     if kind == "direct":
         return direct_solver_options()
     if kind == "iterative":
@@ -434,7 +436,10 @@ class NonlinearSolver:
         self.stats.linear_solves += max(its, 1) if self.linear else its
         self.stats.history.append(its)
         if reason <= 0 or not np.isfinite(self.snes.getFunctionNorm()):
-            raise ConvergenceError(step, reason_name(reason), its, self.prefix)
+            why = reason_name(reason)
+            if reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+                why += f" ({linear_reason(ksp)})"
+            raise ConvergenceError(step, why, its, self.prefix)
         self._copy_in(self._x)
         return its
 
@@ -454,6 +459,14 @@ def reason_name(reason: int) -> str:
     """The name of a SNES converged reason, with its number (e.g. ``DIVERGED_MAX_IT (-5)``)."""
     names = [n for n, v in vars(PETSc.SNES.ConvergedReason).items() if v == reason]
     return f"{names[0] if names else 'UNKNOWN'} ({reason})"
+
+
+def linear_reason(ksp: PETSc.KSP) -> str:
+    """A KSP's converged reason and iterations, e.g. ``KSP DIVERGED_ITS (-3) after 1000 its``."""
+    reason = ksp.getConvergedReason()
+    names = [n for n, v in vars(PETSc.KSP.ConvergedReason).items() if v == reason]
+    name = names[0] if names else "UNKNOWN"
+    return f"KSP {name} ({reason}) after {ksp.getIterationNumber()} iterations"
 
 
 def time_grid(end_time: float, time_step: float, outputs: int) -> tuple[np.ndarray, np.ndarray]:

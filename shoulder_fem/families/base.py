@@ -75,6 +75,8 @@ class Family(Generic[ModelT]):
         dofs: the global number of displacement DOFs of a model.
         report: writes the ``bench`` report into ``BenchReport.folder`` and returns the text
             to print (rank 0's; other ranks may return anything); None: the generic one.
+        check_bench: ``check_bench(scene, level)`` raises SceneError for a scene that ``bench``
+            cannot compare (before anything runs); None: every scene can be.
     """
 
     name: str
@@ -82,3 +84,4 @@ class Family(Generic[ModelT]):
     methods: Mapping[str, Callable[[ModelT, RunContext], None]]
     dofs: Callable[[ModelT], int]
     report: Callable[[BenchReport], str] | None = None
+    check_bench: Callable[[Scene, str], None] | None = None

@@ -209,6 +209,38 @@ class ReducedLayout:
         """Global reduced indices of the rigid DOFs of all ``nb`` bodies."""
         return np.arange(self.rigid_start, self.rigid_start + 6 * nb, dtype=PETSc.IntType)
 
+    def rigid_modes(self, bodies: Sequence[RigidBody], template: PETSc.Vec) -> list[PETSc.Vec]:
+        """The six infinitesimal rigid motions of the whole system as reduced vectors.
+
+        A motion t0 + ω x x (reference positions, about the free nodes' centroid) moves a free
+        node by t0 + ω x X and a body by t = t0 + ω x X_ref, φ = ω (small rotations): the
+        near-nullspace of an iterative solver. Not orthonormalised (collective).
+        """
+        comm = self.comm
+        X = self.X[self.free_nodes] if self.fe else np.zeros((0, 3))
+        total = comm.allreduce(len(X), op=MPI.SUM)
+        centre = comm.allreduce(X.sum(axis=0), op=MPI.SUM) / max(total, 1)
+        modes = []
+        for k in range(6):
+            e = np.eye(3)[k % 3]
+            v = template.duplicate()
+            arr = v.array  # a view of the owned values
+            if k < 3:
+                arr[: self.n_free_local] = np.tile(e, len(X))
+            else:
+                arr[: self.n_free_local] = np.cross(e, X - centre).ravel()
+            if comm.rank == 0:
+                for b, body in enumerate(bodies):
+                    i = self.n_free_local + 6 * b
+                    if k < 3:
+                        arr[i : i + 3] = e
+                    else:
+                        arr[i : i + 3] = np.cross(e, body.reference_point - centre)
+                        arr[i + 3 : i + 6] = e
+            v.assemble()
+            modes.append(v)
+        return modes
+
     def create_prolongation(
         self, bodies: Sequence[RigidBody], phi: np.ndarray, linear_ties: bool
     ) -> PETSc.Mat:

@@ -162,6 +162,8 @@ class ReducedProblem:
         step_state: The dynamic step being solved (shared with the driver).
         stats: Where the callbacks' wall times and factorizations are counted.
         linear_ties: Small-rotation kinematics of the tied nodes (static only).
+        near_nullspace: Attach the system's six rigid motions to J as its near-nullspace
+            (:meth:`ReducedLayout.rigid_modes`), for an algebraic multigrid preconditioner.
     """
 
     def __init__(
@@ -175,6 +177,7 @@ class ReducedProblem:
         step_state: StepState,
         stats: RigidSolveStats,
         linear_ties: bool,
+        near_nullspace: bool = False,
     ) -> None:
         self.bodies, self.springs, self.ties = bodies, springs, ties
         self.layout, self.ends, self.fe = layout, list(ends), fe
@@ -193,6 +196,12 @@ class ReducedProblem:
         self.C: PETSc.Mat | None = None
         if fe is not None:
             self.P = layout.create_prolongation(bodies, self.phi, linear_ties)
+        #: J's near-nullspace (attached to every J built), or None.
+        self.near_nullspace: PETSc.NullSpace | None = None
+        if near_nullspace:
+            self.near_nullspace = PETSc.NullSpace().create(
+                vectors=layout.rigid_modes(bodies, self.x), comm=self.comm
+            )
         self.J = self._create_jacobian()
         self._nonzeros = None  # J's nonzeros at the last factorization's analysis
         #: The travel control (:meth:`set_control`), or None.
@@ -425,6 +434,8 @@ class ReducedProblem:
     def destroy(self) -> None:
         """Free the PETSc objects."""
         objs = [self.J, self.x, self.r]
+        if self.near_nullspace is not None:
+            objs.append(self.near_nullspace)
         if self.fe is not None:
             objs += [self.P, self.C]
         self.contact.destroy()
@@ -484,4 +495,6 @@ def jacobian_pattern(problem: ReducedProblem) -> PETSc.Mat:
         zero = [(i, k, 0.0 * block) for i, k, block in terms.node_tangent]
         problem.layout.add_node_blocks(J, problem.ends, zero, terms.T)
     J.assemble()
+    if problem.near_nullspace is not None:
+        J.setNearNullSpace(problem.near_nullspace)
     return J

@@ -34,6 +34,7 @@ from shoulder_fem.engine.rigid_system.reports import SystemReports
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     default_snes_options,
+    linear_reason,
     reason_name,
     release_options,
     set_from_options,
@@ -90,13 +91,17 @@ def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, 
     stats.solves += 1
     stats.newton_iterations += its
     stats.linear_solves += its
+    stats.krylov_iterations += snes.getLinearSolveIterations()
     stats.history.append(its)
     stats.residual_histories.append(history)
     if petsc_error or reason <= 0 or not math.isfinite(snes.getFunctionNorm()):
         # A failed factorization must not be reused by the next solve (MUMPS then stops
         # with INFOG(1) = -3): the next solve factorizes afresh.
         snes.getKSP().getPC().reset()
-        raise ConvergenceError(step, petsc_error or reason_name(reason), its, prefix)
+        why = petsc_error or reason_name(reason)
+        if reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+            why += f" ({linear_reason(snes.getKSP())})"
+        raise ConvergenceError(step, why, its, prefix)
     logger.debug("%s %s: %d Newton iterations %s", prefix, step, its, history)
     return its
 
@@ -142,6 +147,8 @@ class RigidSystem(SystemReports, ControlledSystem):
         admissible: Callable() -> bool: whether the current state may be a Newton trial state
             (e.g. no inverted element). Newton steps to inadmissible states, or to states with a
             non-finite residual, are halved inside the line search (:class:`~.guard.TrialGuard`).
+        near_nullspace: Give the Jacobian the system's six rigid motions as its near-nullspace
+            (for GAMG, e.g. :func:`shoulder_fem.engine.gamg.scaled_gamg_options`).
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -171,6 +178,7 @@ class RigidSystem(SystemReports, ControlledSystem):
         contact=None,
         linear_ties: bool = False,
         admissible: Callable[[], bool] | None = None,
+        near_nullspace: bool = False,
     ) -> None:
         self.bodies = list(bodies)
         self.linear_ties = bool(linear_ties)
@@ -208,7 +216,14 @@ class RigidSystem(SystemReports, ControlledSystem):
         ]
         self.stats = RigidSolveStats()
         self._problem = ReducedProblem(
-            *parts, layout, ends, self._fe, self._step, self.stats, self.linear_ties
+            *parts,
+            layout,
+            ends,
+            self._fe,
+            self._step,
+            self.stats,
+            self.linear_ties,
+            near_nullspace=near_nullspace,
         )
         self.prefix = unique_prefix(name)
         # every Newton step is shortened until its trial state is admissible with a finite

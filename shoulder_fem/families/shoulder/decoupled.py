@@ -9,7 +9,7 @@ apply to the scapula, and the scapula's rigid motion (:class:`Transfer`); part 2
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import dolfinx
@@ -26,11 +26,13 @@ from shoulder_fem.families.shoulder.interactions import (
     spring_layout,
     surfaces,
 )
+from shoulder_fem.families.shoulder.load_map import load_map, surface_triangles
 from shoulder_fem.families.shoulder.measures import Probe
 from shoulder_fem.families.shoulder.model import (
     ShoulderModel,
     ShoulderParameters,
     displacement,
+    scapula_at,
 )
 from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
 from shoulder_fem.families.shoulder.part2 import run_part2
@@ -60,9 +62,28 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
     # part 2 holds the scapula alone: part 1's mesh, spaces and forms go before it starts
     del model.meshes["rigid-bone"]
     release_memory()
+    level2 = model.params.part2_level or model.level
+    if level2 != model.level:
+        with run.monitor.stage("part2_mesh"):
+            transfer = _to_level(model, run, transfer, level2)
     with run.monitor.stage("part2"):
         stress_vm, mesh2, ft2 = run_part2(model, run, transfer, layout, data)
     save_results(model, data, stress_vm, mesh2, ft2, run.fields.parent / "shoulder.npz")
+
+
+def _to_level(model: ShoulderModel, run: RunContext, transfer: Transfer, level: str) -> Transfer:
+    """Mesh the scapula at ``level`` and carry part 1's loads onto it (:mod:`.load_map`)."""
+    del model.meshes["scapula"]
+    sm = model.meshes["scapula"] = scapula_at(model, level)
+    tags = [S.MARKERS[name].id for name in SCAPULA_LOAD_SURFACES]
+    mapping = load_map(transfer.points, surface_triangles(sm.mesh, sm.facet_tags, tags))
+    rec = run.recorder
+    rec.set_probe("load_map_max_move", float(mapping.moves.max(initial=0.0)), "m")
+    for angle, f in zip(transfer.angles, transfer.forces, strict=True):
+        error = mapping.moment_error(np.asarray(f), transfer.reference)
+        rec.add_series_point("load_map_moment_error", np.degrees(angle), error, "deg", "1")
+    forces = [mapping.forces(np.asarray(f)) for f in transfer.forces]
+    return replace(transfer, points=mapping.points, forces=forces)
 
 
 @dataclass

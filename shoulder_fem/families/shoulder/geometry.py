@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = [
+    "entity_triangles",
     "best_fit_rotation",
     "best_fit_twist",
     "cap_angles",
@@ -33,8 +34,8 @@ __all__ = [
 ]
 
 
-def _entity_centroids(mesh, dim: int, entities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Centroids (m) and areas (m^2) of straight triangles (facets or 2D cells)."""
+def entity_triangles(mesh, dim: int, entities: np.ndarray) -> np.ndarray:
+    """Vertex coordinates (m) of straight triangles (facets or 2D cells): (n, 3, 3)."""
     tdim = mesh.topology.dim
     mesh.topology.create_connectivity(dim, 0)
     mesh.topology.create_connectivity(tdim, 0)
@@ -44,8 +45,15 @@ def _entity_centroids(mesh, dim: int, entities: np.ndarray) -> tuple[np.ndarray,
     # vertex -> geometry node (straight P1 geometry: the cells' vertex and node lists agree)
     v_to_x = np.zeros(n_vert, dtype=np.int64)
     v_to_x[c_to_v.array] = mesh.geometry.dofmap.array
+    if len(entities) == 0:
+        return np.zeros((0, 3, 3))
     tri = np.vstack([conn.links(e) for e in entities]).astype(np.int64)
-    p = mesh.geometry.x[v_to_x[tri]]
+    return mesh.geometry.x[v_to_x[tri]]
+
+
+def _entity_centroids(mesh, dim: int, entities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids (m) and areas (m^2) of straight triangles (facets or 2D cells)."""
+    p = entity_triangles(mesh, dim, entities)
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     return p.mean(axis=1), area
 

@@ -27,9 +27,11 @@ __all__ = [
     "ShoulderModel",
     "ShoulderParameters",
     "build",
+    "check_bench",
     "displacement",
     "dofs",
     "head_tags",
+    "scapula_at",
 ]
 
 #: The bonded interface cut open in the coupled mesh: the driven origin plate is not bone.
@@ -67,6 +69,8 @@ class ShoulderParameters:
     humerus_modulus_factor: float
     rotation_duration: float
     nodal_stress: str
+    part2_solver: str
+    part2_level: str
     ct_image: str
     ct_density_intercept: float
     ct_density_slope: float
@@ -149,6 +153,36 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     model.info["glenoid_frame"] = glenoid_frame(first.mesh, first.facet_tags)
     model.info["humeral_cap"] = humeral_cap(first.mesh, first.facet_tags)
     return model
+
+
+def check_bench(scene: Scene, level: str) -> None:
+    """``bench`` compares part 2 with the coupled scapula node by node: one level for both."""
+    part2 = scene.values().get("part2_level", "")
+    if part2 not in ("", level):
+        raise SceneError(
+            f"{scene.where('part2_level')}: part2_level = {part2!r} differs from the bench's "
+            f"level {level!r}; bench compares part 2 with the coupled run node by node on "
+            "one mesh (use run --method decoupled for part 2 on another level)"
+        )
+
+
+def scapula_at(model: ShoulderModel, level: str) -> S.ShoulderMesh:
+    """The scapula alone meshed at ``level`` (collective): part 2 on another mesh than part 1."""
+    sizes = model.scene.level(level)
+    try:
+        sm = S.build_shoulder_mesh(
+            model.comm,
+            model.geometry,
+            sizes,
+            "scapula",
+            detach=DETACHED,
+            head_layer=model.params.humeral_head_contact,
+        )
+    except ValueError as err:
+        raise SceneError(f"{model.scene.source}: {err}") from None
+    if model.params.ct_image:
+        _check_image(model.scene, model.params, model.image, {"scapula": sm})
+    return sm
 
 
 def _image(scene: Scene, params: ShoulderParameters, geometry) -> ct.CTImage:

@@ -45,17 +45,18 @@ def record_von_mises(
 
 
 def record_time_split(
-    recorder: Recorder, label: str, system: RigidSystem, contact: Contact
+    recorder: Recorder, label: str, system: RigidSystem, contact: Contact | None
 ) -> None:
     """Where a stepping's Newton time went (probes ``<label>_time_*_s``, wall s, slowest rank).
 
     ``newton``: in the Newton solves in all; ``residual`` and ``jacobian``: their evaluations
     (FE assembly, contact, the reduction to the rigid bodies; within ``jacobian``:
     ``jacobian_fe_assembly`` and ``jacobian_reduction``, the products Pᵀ K P); ``linear``: the
-    rest of ``newton`` (the LU factorizations and solves); ``contact``: the contact search and
-    assembly, part of ``residual`` and ``jacobian``.
+    rest of ``newton`` (the LU factorizations and solves, or the preconditioner's set-up and
+    the Krylov iterations); ``contact``: the contact search and assembly, part of ``residual``
+    and ``jacobian`` (none without ``contact``).
     """
-    st, cs = system.stats, contact.stats
+    st = system.stats
     times = {
         "newton": st.snes_s,
         "residual": st.residual_s,
@@ -63,8 +64,9 @@ def record_time_split(
         "jacobian_fe_assembly": st.fe_assembly_s,
         "jacobian_reduction": st.reduction_s,
         "linear": max(st.snes_s - st.residual_s - st.jacobian_s, 0.0),
-        "contact": cs.search_s + cs.assembly_s,
     }
+    if contact is not None:
+        times["contact"] = contact.stats.search_s + contact.stats.assembly_s
     for key, value in times.items():
         worst = system.comm.allreduce(float(value), op=MPI.MAX)
         recorder.set_probe(f"{label}_time_{key}_s", worst, "s")

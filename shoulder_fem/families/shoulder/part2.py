@@ -29,7 +29,7 @@ from shoulder_fem.families.shoulder.geometry import patch_centroid
 from shoulder_fem.families.shoulder.interactions import bone_fields, surfaces
 from shoulder_fem.families.shoulder.measures import VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel
-from shoulder_fem.families.shoulder.outputs import record_von_mises
+from shoulder_fem.families.shoulder.outputs import record_time_split, record_von_mises
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.io.fields import FieldWriter
@@ -362,6 +362,7 @@ class _Part2:
         rec.set_probe("part2_factorizations", self.system.stats.factorizations, "1")
         rec.set_probe("part2_iterations", self.iterations, "1")
         rec.set_probe("part2_krylov_iterations", self.system.stats.krylov_iterations, "1")
+        record_time_split(rec, "part2", self.system, None)
         rec.add_solver_counts(self.system.stats, StepperStats(steps=len(self.angles)))
         rec.extra("dofs_part2", self.V.dofmap.index_map.size_global * 3)
         self.system.destroy()

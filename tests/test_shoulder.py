@@ -56,6 +56,8 @@ SERIES = (
     "actuation",
     "scapula_max_von_mises",
     "humeral_swing",
+    "humerus_distal_support_force",
+    "humerus_horizontal_support_force",
     "humeral_cap_contact_angle",
     "humeral_cap_contact_angle_max",
 )
@@ -618,19 +620,30 @@ def test_without_horizontal_elements_the_humerus_swings(study, comm_tmp):
     """The paper's 4 vertical distal elements alone (``humerus_horizontal_stiffness`` = 0):
     both methods turn the humerus to 10 deg, but its shaft swings more than 10 deg (measured
     14.1 deg, the same with both within 0.1 deg), where the scene's horizontal elements hold it
-    under 1 deg (the study fixture, measured 0.6 deg)."""
+    under 1 deg (the study fixture, measured 0.6 deg). The supports' forces (Σ|tension| of the
+    vertical and of the horizontal elements) are reported, zero for the horizontal ones when
+    they are absent, and the two methods agree on them within 5 %."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(
         ["final_angle=10deg", "humerus_horizontal_stiffness=0N/mm"]
     )
-    swing = {}
+    swing, vertical = {}, {}
     for method in ("coupled", "decoupled"):
         result = api.run(scene, method, "coarse", comm_tmp / method)
         assert result.status == "ok", result.data.get("message")
         _, swing[method] = _series(result, "humeral_swing")
+        _, vertical[method] = _series(result, "humerus_distal_support_force")
+        assert np.all(_series(result, "humerus_horizontal_support_force")[1] == 0.0)
     assert swing["coupled"][-1] > 10.0, swing
     assert np.allclose(swing["coupled"], swing["decoupled"], atol=0.1), swing
+    # the supports' forces, reported by each method, agree (the other method is the check)
+    assert vertical["coupled"][-1] > 0.1  # N
+    assert np.allclose(vertical["coupled"], vertical["decoupled"], rtol=0.05), vertical
     x, held = _series(study["results"]["coupled"], "humeral_swing")
     assert x[1] == pytest.approx(10.0) and held[1] < 1.0, held
+    held = {
+        m: _series(r, "humerus_horizontal_support_force")[1] for m, r in study["results"].items()
+    }
+    assert held["coupled"][-1] > 0.1 and np.allclose(held["coupled"], held["decoupled"], rtol=0.05)
 
 
 def test_a_stalled_rotation_ends_incomplete_and_keeps_the_angles_reached(comm_tmp):

@@ -512,6 +512,11 @@ class AngleOutputs:
             self.recorder.add_series_point(f"{m}_force", x, float(np.linalg.norm(f)), "deg", "N")
         travel = float(np.linalg.norm(self.job.actuator.translation))
         self.recorder.add_series_point("actuation", x, travel, "deg", "m")
+        # the humerus's supports: Σ|tension| of the 4 vertical and of the horizontal elements
+        tension = {k: abs(v["tension"]) for k, v in self.job.system.spring_forces().items()}
+        for group in ("distal", "horizontal"):
+            total = sum(v for k, v in tension.items() if k.startswith(f"humerus_{group}_"))
+            self.recorder.add_series_point(f"humerus_{group}_support_force", x, total, "deg", "N")
 
     def stall_note(self, final: float) -> str:
         """Where the contact and the shaft had got to at the last state reached (``final``, rad)."""

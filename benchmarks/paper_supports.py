@@ -71,7 +71,7 @@ def plot(data: dict, path: Path) -> None:
                 ax[3].plot(h["x"], h["y"], color=kw["color"], ls=":")
         edge = next(iter(cases.values()))["coupled"]["cap_half_angle_deg"]
     ax[1].axhline(edge, color="k", lw=0.8)
-    ax[1].text(1, edge - 4, "edge of the humeral cartilage", fontsize=7)
+    ax[1].text(32, edge - 5, "edge of the humeral cartilage", fontsize=7)
     ax[0].set(xlabel="internal rotation (deg)", ylabel="deg", title="humerus swing")
     ax[1].set(
         xlabel="internal rotation (deg)", ylabel="deg", title="contact's reach on the humeral cap"

@@ -9,6 +9,9 @@ reads the two runs' ``summary.json``: wall time (the slowest rank), CPU time (su
 ranks), peak memory (summed, and the largest rank's own), Newton iterations, DOFs. It writes
 ``scaling_<level>.json`` and ``scaling_<level>.png`` (wall time and parallel efficiency
 T_1 / (N T_N) per method, memory per rank). Every figure is measured; it asserts nothing.
+
+Part 2 on the ``fine`` scapula (1 and 2 ranks, LU and CG + GAMG, with the projection to 64
+ranks) is measured by ``benchmarks/part2_solvers.py`` (``part2_solvers.{json,png}``).
 """
 
 from __future__ import annotations

@@ -85,9 +85,9 @@ class ScaledGAMG:
                 obj.destroy()
         ai, aj, av = P.getValuesCSR()
         (n_local, _), _ = P.getSizes()
-        bs = 3 if n_local % 3 == 0 and P.getComm().tompi4py().allreduce(n_local % 3) == 0 else 1
+        bs = 3 if P.getComm().tompi4py().allreduce(n_local % 3) == 0 else 1  # 3 on every rank
         self.As = PETSc.Mat().createAIJ(P.getSizes(), bsize=bs, csr=(ai, aj, av), comm=P.getComm())
-        root = d.copy()
+        root = d  # D^1/2 from here on
         root.sqrtabs()
         self.s = root.copy()
         self.s.reciprocal()
@@ -102,7 +102,6 @@ class ScaledGAMG:
             dolfinx.la.orthonormalize(vecs)
             self.As.setNearNullSpace(PETSc.NullSpace().create(vectors=vecs))
         root.destroy()
-        d.destroy()
         self.work = self.s.duplicate()
         inner = self._inner(pc)
         inner.setOperators(self.As)

@@ -436,10 +436,7 @@ class NonlinearSolver:
         self.stats.linear_solves += max(its, 1) if self.linear else its
         self.stats.history.append(its)
         if reason <= 0 or not np.isfinite(self.snes.getFunctionNorm()):
-            why = reason_name(reason)
-            if reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
-                why += f" ({linear_reason(ksp)})"
-            raise ConvergenceError(step, why, its, self.prefix)
+            raise ConvergenceError(step, failure_reason(reason, ksp), its, self.prefix)
         self._copy_in(self._x)
         return its
 
@@ -455,18 +452,22 @@ class NonlinearSolver:
             self._P.destroy()
 
 
-def reason_name(reason: int) -> str:
-    """The name of a SNES converged reason, with its number (e.g. ``DIVERGED_MAX_IT (-5)``)."""
-    names = [n for n, v in vars(PETSc.SNES.ConvergedReason).items() if v == reason]
+def reason_name(reason: int, kind=PETSc.SNES) -> str:
+    """The name and number of a SNES (or ``kind``) converged reason: ``DIVERGED_MAX_IT (-5)``."""
+    names = [n for n, v in vars(kind.ConvergedReason).items() if v == reason]
     return f"{names[0] if names else 'UNKNOWN'} ({reason})"
 
 
-def linear_reason(ksp: PETSc.KSP) -> str:
-    """A KSP's converged reason and iterations, e.g. ``KSP DIVERGED_ITS (-3) after 1000 its``."""
-    reason = ksp.getConvergedReason()
-    names = [n for n, v in vars(PETSc.KSP.ConvergedReason).items() if v == reason]
-    name = names[0] if names else "UNKNOWN"
-    return f"KSP {name} ({reason}) after {ksp.getIterationNumber()} iterations"
+def failure_reason(reason: int, ksp: PETSc.KSP) -> str:
+    """A failed SNES's reason; for a failed linear solve, with the KSP's reason and iterations.
+
+    E.g. ``DIVERGED_LINEAR_SOLVE (-3) (KSP DIVERGED_MAX_IT (-3) after 2 iterations)``.
+    """
+    why = reason_name(reason)
+    if reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+        ksp_reason = reason_name(ksp.getConvergedReason(), PETSc.KSP)
+        why += f" (KSP {ksp_reason} after {ksp.getIterationNumber()} iterations)"
+    return why
 
 
 def time_grid(end_time: float, time_step: float, outputs: int) -> tuple[np.ndarray, np.ndarray]:

@@ -34,8 +34,7 @@ from shoulder_fem.engine.rigid_system.reports import SystemReports
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     default_snes_options,
-    linear_reason,
-    reason_name,
+    failure_reason,
     release_options,
     set_from_options,
     unique_prefix,
@@ -98,9 +97,7 @@ def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, 
         # A failed factorization must not be reused by the next solve (MUMPS then stops
         # with INFOG(1) = -3): the next solve factorizes afresh.
         snes.getKSP().getPC().reset()
-        why = petsc_error or reason_name(reason)
-        if reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
-            why += f" ({linear_reason(snes.getKSP())})"
+        why = petsc_error or failure_reason(reason, snes.getKSP())
         raise ConvergenceError(step, why, its, prefix)
     logger.debug("%s %s: %d Newton iterations %s", prefix, step, its, history)
     return its

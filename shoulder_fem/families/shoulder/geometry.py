@@ -17,10 +17,10 @@ from scipy.spatial.transform import Rotation
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = [
-    "entity_triangles",
     "best_fit_rotation",
     "best_fit_twist",
     "cap_angles",
+    "entity_triangles",
     "gather_rows",
     "glenoid_frame",
     "humeral_cap",

@@ -17,9 +17,10 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
+from shoulder_fem.engine.contact import closest_points_on_triangles
 from shoulder_fem.families.shoulder.geometry import entity_triangles
 
-__all__ = ["LoadMap", "closest_on_triangles", "load_map", "surface_triangles"]
+__all__ = ["LoadMap", "load_map", "surface_triangles"]
 
 #: Candidate triangles per point (by centroid) searched for the closest one.
 CANDIDATES = 16
@@ -64,36 +65,6 @@ def surface_triangles(mesh: dolfinx.mesh.Mesh, facet_tags, tags: list[int]) -> n
     return np.concatenate(mesh.comm.allgather(local))
 
 
-def closest_on_triangles(p: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points to ``p`` (k, 3) on triangles ``tri`` (k, 3, 3), and barycentrics (k, 3).
-
-    The barycentric weights are non-negative and sum to one (the point is on the triangle).
-    """
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    e0, e1, d = b - a, c - a, p - a
-    m00 = np.einsum("ij,ij->i", e0, e0)
-    m01 = np.einsum("ij,ij->i", e0, e1)
-    m11 = np.einsum("ij,ij->i", e1, e1)
-    r0, r1 = np.einsum("ij,ij->i", d, e0), np.einsum("ij,ij->i", d, e1)
-    det = m00 * m11 - m01**2
-    s = (m11 * r0 - m01 * r1) / det
-    t = (m00 * r1 - m01 * r0) / det
-    lam = np.stack([1.0 - s - t, s, t], axis=1)
-    inside = (lam >= 0.0).all(axis=1)
-    best = np.where(inside[:, None], lam, np.nan)
-    dist = np.where(inside, np.linalg.norm(p - np.einsum("ij,ijk->ik", lam, tri), axis=1), np.inf)
-    for i, j in ((0, 1), (1, 2), (2, 0)):  # the closest point of each edge
-        q0, q1 = tri[:, i], tri[:, j]
-        edge = q1 - q0
-        u = np.clip(np.einsum("ij,ij->i", p - q0, edge) / np.einsum("ij,ij->i", edge, edge), 0, 1)
-        gap = np.linalg.norm(p - (q0 + u[:, None] * edge), axis=1)
-        closer = gap < dist
-        w = np.zeros((len(p), 3))
-        w[:, i], w[:, j] = 1.0 - u, u
-        best[closer], dist[closer] = w[closer], gap[closer]
-    return np.einsum("ij,ijk->ik", best, tri), best
-
-
 def load_map(source: np.ndarray, triangles: np.ndarray) -> LoadMap:
     """The map of nodal forces at ``source`` (n, 3) onto the vertices of ``triangles``."""
     if len(triangles) == 0:
@@ -103,15 +74,18 @@ def load_map(source: np.ndarray, triangles: np.ndarray) -> LoadMap:
     _, cand = tree.query(source, k=k)
     cand = np.asarray(cand).reshape(len(source), k)
     n = len(source)
-    images, lams = closest_on_triangles(np.repeat(source, k, axis=0), triangles[cand.ravel()])
-    gaps = np.linalg.norm(images - np.repeat(source, k, axis=0), axis=1).reshape(n, k)
-    pick = np.argmin(gaps, axis=1)
+    tri = triangles[cand]  # (n, k, 3, 3)
+    _, lams, dist2, _ = closest_points_on_triangles(
+        source[:, None, :], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
+    )
+    pick = np.argmin(dist2, axis=1)
     chosen = cand[np.arange(n), pick]
-    lam = lams.reshape(n, k, 3)[np.arange(n), pick]
+    lam = lams[np.arange(n), pick]
+    gaps = np.sqrt(dist2[np.arange(n), pick])
     verts = triangles[chosen].reshape(-1, 3)
     # the same vertex seen from several triangles: one load point (rounded to 1e-12 m)
     keys = np.round(verts / 1e-12).astype(np.int64)
     uniq, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     rows, cols = inverse.ravel(), np.repeat(np.arange(n), 3)
     weights = csr_matrix((lam.ravel(), (rows, cols)), shape=(len(uniq), n))  # duplicates add
-    return LoadMap(verts[first], weights, gaps[np.arange(n), pick], np.asarray(source))
+    return LoadMap(verts[first], weights, gaps, np.asarray(source))

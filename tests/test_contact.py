@@ -389,6 +389,68 @@ def test_compiled_segment_kernel_equals_the_numpy_code(monkeypatch, degree):
     assert np.abs(K_c[2] - K_n[2]).max(initial=0.0) <= 1e-9 * scale  # measured 1.6e-12
 
 
+@pytest.mark.parametrize("code", ["numpy", "c"])
+def test_segment_points_move_continuously_when_the_cut_starts_elsewhere(monkeypatch, code):
+    """The points of a cut are a continuous function of the geometry, so a kinked integrand
+    (the penalty law across the zero-gap line) sums continuously too. The unit slave triangle
+    under a master (0.6, delta), (-0.5, 0), (0.9, 1.5) whose first edge lies on the slave's
+    edge y = 0: the overlap is the same pentagon for delta = -1e-9 and +1e-9, but the clipped
+    polygon's vertex list starts at (0, 0) for one and at (0.6, 0) for the other (the cut's
+    kink). The sum of max(0, x + y / 2 - 0.4) (a kink through the pentagon) moves by O(delta)
+    with the fan about the polygon's centroid; with a fan about the polygon's first vertex (as
+    before) it jumps by 3.5 % (on the shoulder's glenoid: 0.15 N on one piece, and a Newton
+    solve cycled). The sum does not depend on where the vertex list starts either."""
+    from shoulder_fem.engine.contact import kernel
+    from shoulder_fem.engine.contact.geometry import fan_rule, overlap_polygons, segment_rule
+
+    rule = segment_rule(4)
+    mu, w = rule
+    slave = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    ns = np.array([[0.0, 0.0, 1.0]])
+
+    def master(delta):
+        return np.array([[[0.6, delta, 0.0], [-0.5, 0.0, 0.0], [0.9, 1.5, 0.0]]])
+
+    def kinked(pts, W):
+        return float(np.sum(W * np.maximum(0.0, pts[:, 0] + 0.5 * pts[:, 1] - 0.4)))
+
+    def vertex_fan(poly):  # the fan about the first vertex, by hand
+        total = 0.0
+        for b, c in zip(poly[1:-1], poly[2:], strict=True):
+            a = poly[0]
+            area = 0.5 * abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+            total += 2.0 * area * kinked(mu @ np.array([a, b, c]), w)
+        return total
+
+    sums, polys = [], []
+    for delta in (-1e-9, 1e-9):
+        s2, _, poly, cnt = overlap_polygons(slave, ns, master(delta))
+        polys.append(poly[0, : cnt[0]])
+        if code == "c":
+            monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "c")
+            kern = kernel.load()
+            if kern is None:
+                pytest.fail("the segment kernel did not compile (see the warning)")
+            _, lam, _, W = kern.cut(slave, ns, master(delta), rule)
+            sums.append(kinked(lam[:, 1:], W))  # (x, y) on the unit slave = (l1, l2)
+        else:
+            sums.append(kinked(*fan_rule(poly, cnt, s2, rule)[1:]))
+    assert np.abs(polys[0][0] - polys[1][0]).max() > 0.5  # the lists start at other vertices
+    assert abs(sums[1] - sums[0]) <= 1e-8 * sums[0], sums  # measured 1.4e-9
+    fans = [vertex_fan(poly) for poly in polys]
+    assert abs(fans[1] - fans[0]) > 0.02 * fans[0], fans  # measured 3.5 %
+    pent = polys[0]
+    rolled = [
+        kinked(
+            *fan_rule(np.roll(pent, k, axis=0)[None], np.array([len(pent)]), slave[:, :, :2], rule)[
+                1:
+            ]
+        )
+        for k in range(len(pent))
+    ]
+    assert np.ptp(rolled) <= 1e-14 * rolled[0], rolled
+
+
 def test_segment_tangent_is_central_near_kinks_forward_elsewhere(monkeypatch):
     """Where the segment tangent's difference quotient is one-sided and where central.
 

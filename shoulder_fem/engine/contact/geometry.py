@@ -242,7 +242,14 @@ def cut_kink(s2: np.ndarray, m2: np.ndarray) -> np.ndarray:
 
 
 def fan_rule(poly: np.ndarray, cnt: np.ndarray, s2: np.ndarray, rule):
-    """A rule on every convex polygon, applied on the triangles of its fan.
+    """A rule on every convex polygon, applied on the triangles of its fan about its centroid.
+
+    Each polygon is cut into the triangles (centroid, v_i, v_i+1) about its area centroid, which
+    moves continuously with the polygon: a fan about one of its vertices changes its triangles
+    at once when the clipping starts the polygon at another vertex (a slave vertex crossing a
+    master edge's line), and where the pressure law has a kink inside the polygon (the zero-gap
+    line) the rule's sum then jumps (measured at ``coarse``, part 1 at 16 deg: 0.15 N on one
+    piece for a state change of 1e-12, and Newton cycled at a residual of 0.1 N).
 
     Args:
         poly: Convex polygons (M, K, 2) with ``cnt`` (M,) valid vertices each.
@@ -252,32 +259,40 @@ def fan_rule(poly: np.ndarray, cnt: np.ndarray, s2: np.ndarray, rule):
 
     Returns:
         (rr, pts, w): the polygon of every point (S,), the points (S, 2) and their weights as
-        fractions of the area of the polygon's triangle ``s2`` (S,). Fan triangles of no area
-        (below 1e-12 of it) are left out.
+        fractions of the area of the polygon's triangle ``s2`` (S,). Polygons and fan triangles
+        of no area (below 1e-12 of it) are left out.
     """
-    kmax = poly.shape[1]
-    if kmax < 3:
+    M, kmax = poly.shape[:2]
+    if kmax < 3 or M == 0:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0)
-    fan = np.arange(1, kmax - 1)
-    A = poly[:, 0][:, None, :]
-    B = poly[:, fan]
-    C = poly[:, fan + 1]
-    ok = (fan[None, :] + 1) < cnt[:, None]
-    area2 = 0.5 * (
-        (B[..., 0] - A[..., 0]) * (C[..., 1] - A[..., 1])
-        - (B[..., 1] - A[..., 1]) * (C[..., 0] - A[..., 0])
-    )
     s_area = 0.5 * np.abs(
         (s2[:, 1, 0] - s2[:, 0, 0]) * (s2[:, 2, 1] - s2[:, 0, 1])
         - (s2[:, 1, 1] - s2[:, 0, 1]) * (s2[:, 2, 0] - s2[:, 0, 0])
     )
-    ok &= np.abs(area2) > 1e-12 * s_area[:, None]
+    idx = np.arange(kmax)
+    valid = idx[None, :] < cnt[:, None]
+    nxt = np.where(idx[None, :] + 1 < cnt[:, None], idx[None, :] + 1, 0)
+    rows = np.arange(M)[:, None]
+    rel = poly - poly[:, :1]  # about the first vertex (round-off)
+    B, C = rel, rel[rows, nxt]
+    cross = np.where(valid, B[..., 0] * C[..., 1] - B[..., 1] * C[..., 0], 0.0)
+    area2 = cross.sum(axis=1)  # twice the signed area
+    big = np.abs(area2) > 2e-12 * s_area
+    den = np.where(big, 3.0 * area2, 1.0)
+    cen = np.einsum("mk,mkd->md", cross, B + C) / den[:, None]  # the area centroid, relative
+    A = np.broadcast_to(cen[:, None, :], B.shape)
+    tri2 = 0.5 * (
+        (B[..., 0] - A[..., 0]) * (C[..., 1] - A[..., 1])
+        - (B[..., 1] - A[..., 1]) * (C[..., 0] - A[..., 0])
+    )
+    ok = valid & big[:, None] & (np.abs(tri2) > 1e-12 * s_area[:, None])
     r, f = np.nonzero(ok)
     if len(r) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0)
-    corners = np.stack([A[r, 0], B[r, f], C[r, f]], axis=1)  # (S, 3, 2)
+    origin = poly[r, 0]
+    corners = np.stack([A[r, f], B[r, f], C[r, f]], axis=1) + origin[:, None, :]  # (S, 3, 2)
     seg_mu, seg_w = rule
     pts = np.einsum("qk,skd->sqd", seg_mu, corners).reshape(-1, 2)
     rr = np.repeat(r, len(seg_w))
-    W = (np.abs(area2[r, f])[:, None] * seg_w[None, :]).ravel()
+    W = (np.abs(tri2[r, f])[:, None] * seg_w[None, :]).ravel()
     return rr, pts, W / s_area[rr]

@@ -11,7 +11,7 @@
 
 #define MAXV 24            /* polygon vertices: 3 -> 6 -> 12 -> 24 at most (Sutherland-Hodgman) */
 #define MAXQ 16            /* points of the rule on one fan triangle */
-#define MAXP ((MAXV - 2) * MAXQ)
+#define MAXP (MAXV * MAXQ)      /* the centroid fan: one triangle per vertex */
 #define MAXK 12            /* nodes of a pair: 6 slave + 6 master (P2) */
 
 static const double NODE_MU[6][3] = {
@@ -136,19 +136,36 @@ static int cut_pair(const double *P, const double *ns, const double *T, int nq,
     cnt = clip(bufa, cnt, mc + 4, mc, bufb);
     double *poly = bufb;
     double s_area = 0.5 * fabs((s2[2] - s2[0]) * (s2[5] - s2[1]) - (s2[3] - s2[1]) * (s2[4] - s2[0]));
+    /* the fan about the polygon's area centroid (geometry.fan_rule: it moves continuously
+     * with the polygon, a fan about a vertex does not), coordinates about the first vertex */
+    double rel[2 * MAXV], area2 = 0.0, cx = 0.0, cy = 0.0;
+    for (int j = 0; j < cnt; ++j) {
+        rel[2 * j] = poly[2 * j] - poly[0];
+        rel[2 * j + 1] = poly[2 * j + 1] - poly[1];
+    }
+    for (int j = 0; j < cnt; ++j) {
+        const double *B = rel + 2 * j, *C = rel + 2 * ((j + 1) % cnt);
+        double c = B[0] * C[1] - B[1] * C[0];
+        area2 += c;
+        cx += c * (B[0] + C[0]);
+        cy += c * (B[1] + C[1]);
+    }
     int q = 0;
-    for (int f = 1; f + 1 < cnt; ++f) {
-        const double *A = poly, *B = poly + 2 * f, *C = poly + 2 * f + 2;
-        double area2 = 0.5 * ((B[0] - A[0]) * (C[1] - A[1]) - (B[1] - A[1]) * (C[0] - A[0]));
-        if (!(fabs(area2) > 1e-12 * s_area))
+    if (cnt < 3 || !(fabs(area2) > 2e-12 * s_area))
+        return 0;
+    double A[2] = {cx / (3.0 * area2), cy / (3.0 * area2)};
+    for (int f = 0; f < cnt; ++f) {
+        const double *B = rel + 2 * f, *C = rel + 2 * ((f + 1) % cnt);
+        double tri2 = 0.5 * ((B[0] - A[0]) * (C[1] - A[1]) - (B[1] - A[1]) * (C[0] - A[0]));
+        if (!(fabs(tri2) > 1e-12 * s_area))
             continue;
         for (int k = 0; k < nq; ++k) {
             double p[2];
             for (int d = 0; d < 2; ++d)
-                p[d] = mu[3 * k] * A[d] + mu[3 * k + 1] * B[d] + mu[3 * k + 2] * C[d];
+                p[d] = mu[3 * k] * A[d] + mu[3 * k + 1] * B[d] + mu[3 * k + 2] * C[d] + poly[d];
             barycentric_2d(p, s2, lam + 3 * q);
             barycentric_2d(p, m2, beta + 3 * q);
-            W[q] = fabs(area2) * w[k] / s_area;
+            W[q] = fabs(tri2) * w[k] / s_area;
             ++q;
         }
     }

@@ -35,6 +35,9 @@ class TrialGuard:
             (``step_halvings``).
         comm: The communicator.
         max_halvings: Halvings allowed per Newton step.
+        correct: Callable(x, y) -> bool applied to every Newton step first (changes ``y`` in
+            place; True if it did), e.g. :meth:`~.corotation.RigidRegions.correct` on the
+            free block; None: none.
     """
 
     def __init__(
@@ -45,8 +48,10 @@ class TrialGuard:
         stats,
         comm: MPI.Comm,
         max_halvings: int = 20,
+        correct: Callable[[PETSc.Vec, PETSc.Vec], bool] | None = None,
     ):
         self.update_state, self._residual = update_state, residual
+        self.correct = correct
         self.admissible, self.stats, self.comm = admissible, stats, comm
         self.max_halvings = int(max_halvings)
         self._trial: PETSc.Vec | None = None
@@ -64,10 +69,11 @@ class TrialGuard:
         self._residual(snes, x, r)
 
     def __call__(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
-        """SNES pre-check callback: shorten ``y`` in place; True if it changed."""
+        """SNES pre-check callback: correct, then shorten ``y`` in place; True if it changed."""
         if self._trial is None or self._trial.getSizes() != x.getSizes():
             self.destroy()
             self._trial, self._r = x.duplicate(), x.duplicate()
+        corrected = bool(self.correct(x, y)) if self.correct is not None else False
         scale = 1.0
         for _ in range(self.max_halvings):
             if self._passes(x, y, scale):
@@ -77,7 +83,7 @@ class TrialGuard:
         else:
             self._passes(x, y, scale)  # the last one: the line search takes it as it is
         if scale == 1.0:
-            return False
+            return corrected
         y.scale(scale)
         self.stats.shortened_steps += 1
         return True

@@ -19,6 +19,7 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.rigid_system.bodies import RigidBody, Tie
 from shoulder_fem.engine.rigid_system.control import ControlledSystem
+from shoulder_fem.engine.rigid_system.corotation import RigidRegions
 from shoulder_fem.engine.rigid_system.deformable import DeformablePart
 from shoulder_fem.engine.rigid_system.dynamics import StepState
 from shoulder_fem.engine.rigid_system.guard import TrialGuard
@@ -146,6 +147,9 @@ class RigidSystem(SystemReports, ControlledSystem):
             non-finite residual, are halved inside the line search (:class:`~.guard.TrialGuard`).
         near_nullspace: Give the Jacobian the system's six rigid motions as its near-nullspace
             (for GAMG, e.g. :func:`shoulder_fem.engine.gamg.scaled_gamg_options`).
+        rigid_regions: Stiff regions of the deformable body (per region, local node indices,
+            e.g. a bone's cells' nodes) whose share of every Newton step is made
+            a finite rotation (:mod:`~.corotation`); the converged states are unchanged.
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -176,6 +180,7 @@ class RigidSystem(SystemReports, ControlledSystem):
         linear_ties: bool = False,
         admissible: Callable[[], bool] | None = None,
         near_nullspace: bool = False,
+        rigid_regions: Sequence[np.ndarray] = (),
     ) -> None:
         self.bodies = list(bodies)
         self.linear_ties = bool(linear_ties)
@@ -212,23 +217,18 @@ class RigidSystem(SystemReports, ControlledSystem):
             for i in (0, 1)
         ]
         self.stats = RigidSolveStats()
-        self._problem = ReducedProblem(
-            *parts,
-            layout,
-            ends,
-            self._fe,
-            self._step,
-            self.stats,
-            self.linear_ties,
-            near_nullspace=near_nullspace,
+        fe_parts = (self._fe, self._step, self.stats, self.linear_ties)
+        self._problem = problem = ReducedProblem(
+            *parts, layout, ends, *fe_parts, near_nullspace=near_nullspace
         )
         self.prefix = unique_prefix(name)
-        # every Newton step is shortened until its trial state is admissible with a finite
-        # residual (guard.py)
-        problem = self._problem
-        self._guard = TrialGuard(
-            problem.update_state, problem.residual, admissible, self.stats, self.comm
-        )
+        #: The stiff regions whose Newton steps turn by finite rotations, or None.
+        self.rigid_regions = RigidRegions(layout, self.bodies, rigid_regions) or None
+        # every Newton step is corrected (rigid_regions), then shortened until its trial state
+        # is admissible with a finite residual (guard.py)
+        fix = self.rigid_regions.precheck if self.rigid_regions else None
+        checks = (admissible, self.stats, self.comm)
+        self._guard = TrialGuard(problem.update_state, problem.residual, *checks, correct=fix)
         self.snes, self._linesearch = create_snes(problem, self._guard, self.prefix, options)
         #: Whether every Newton iteration evaluates J (not a lagged, chord Jacobian): only then
         #: may J be rebuilt between solves (:func:`~.problem.rebuild_jacobian`), since a lagged

@@ -54,6 +54,18 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     bodies.append(actuator)
     ties.append(Tie("actuator", "subscapularis_origin"))
     check = SoftTissueCheck(u, ct_)
+    # each bone's share of every Newton step turns by a finite rotation (on the paper's supports
+    # the humerus swings by tens of degrees and the scapula turns with it: a linear step
+    # strains the stiff bone; engine/rigid_system/corotation.py; with the cartilages in the
+    # regions too, measured at coarse: 2 cut-backs over 0-60 deg instead of 1)
+    bones = [
+        np.unique(
+            np.concatenate(
+                [dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(m.id)) for m in group]
+            )
+        )
+        for group in ((S.HUMERUS,), (S.SCAPULA,))
+    ]
     system = RigidSystem(
         bodies,
         springs,
@@ -66,6 +78,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         form_compiler_params=p.quadrature(),
         contact=contact,
         admissible=check,
+        rigid_regions=bones,
     )
     humerus_dofs = dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(S.HUMERUS.id))
     humerus_dofs = humerus_dofs[humerus_dofs < V.dofmap.index_map.size_local]

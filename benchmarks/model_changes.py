@@ -1,0 +1,139 @@
+"""Benchmark: how far each earlier simplification of the shoulder model moved its results.
+
+    OMP_NUM_THREADS=1 python benchmarks/model_changes.py --levels coarse medium \
+        --out benchmarks/results
+
+Both methods, 0-60 deg, on four variants of the scene (issue 20, item 9):
+
+* ``whole``: the scene as it is (the paper's 4 vertical distal elements, the rotator cuff
+  sliding on the humeral head);
+* ``earlier``: the defaults before 2026-11-27 (two horizontal distal elements of 5 N/mm added,
+  no muscle-bone contact: the muscles pass through bone);
+* ``supports``: the paper's supports without the muscle-bone contact (the supports' effect);
+* ``cuff``: the muscle-bone contact with the horizontal elements (the contact's effect).
+
+Per run and output angle: the peak glenoid pressure, the muscle forces, the scapula's largest
+nodal von Mises stress, the humerus's swing, the contact's reach on the humeral cartilage, the
+supports' forces and the cuff's force on the head; per run its status, steps, failed steps,
+Newton iterations and CPU time. Writes ``model_changes.json`` and ``model_changes.png`` (the
+coupled runs; the decoupled ones are in the JSON). Every figure is measured; it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+from shoulder_fem import load_scene, run
+from shoulder_fem.io.output import atomic_write_json
+from shoulder_fem.io.plots import plt, save_figure
+
+VARIANTS = {
+    "whole": [],
+    "earlier": ["humerus_horizontal_stiffness=5N/mm", "muscle_contact=none"],
+    "supports": ["humerus_horizontal_stiffness=0N/mm", "muscle_contact=none"],
+    "cuff": ["humerus_horizontal_stiffness=5N/mm", "muscle_contact=humeral-head"],
+}
+SERIES = (
+    "max_pressure",
+    "subscapularis_force",
+    "infraspinatus_force",
+    "supraspinatus_force",
+    "scapula_max_von_mises",
+    "humeral_swing",
+    "humeral_cap_contact_angle_max",
+    "humerus_distal_support_force",
+    "humerus_horizontal_support_force",
+    "muscle_bone_contact_force",
+)
+METHODS = ("coupled", "decoupled")
+
+
+def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
+    """One run's status, counters and series."""
+    scene = load_scene("shoulder-internal-rotation").with_overrides(overrides)
+    r = run(scene, method, level=level, out=out)
+    p = r.probes
+    return {
+        "overrides": overrides,
+        "status": r.status,
+        "final_angle_deg": p["final_angle_deg"],
+        "steps": p["steps"],
+        "failed_steps": p["failed_steps"],
+        "newton_iterations": p["newton_iterations"],
+        "cap_half_angle_deg": p["humeral_cap_half_angle_deg"],
+        "cpu_s": r.resources["cpu_s"],
+        "series": {
+            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in SERIES if k in r.series
+        },
+    }
+
+
+PANELS = (
+    ("max_pressure", 1e-6, "MPa", "peak glenoid pressure"),
+    ("subscapularis_force", 1.0, "N", "subscapularis force"),
+    ("infraspinatus_force", 1.0, "N", "infraspinatus force"),
+    ("scapula_max_von_mises", 1e-6, "MPa", "scapula's largest nodal von Mises"),
+    ("humeral_swing", 1.0, "deg", "humerus swing"),
+    ("humeral_cap_contact_angle_max", 1.0, "deg", "contact's reach on the humeral cap"),
+)
+
+
+def plot(data: dict, path: Path) -> None:
+    """The coupled runs' series, one panel per quantity, one line per variant and level."""
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5), layout="constrained")
+    colours = {"whole": "C0", "earlier": "C3", "supports": "C2", "cuff": "C1"}
+    styles = {"coarse": ":", "medium": "-", "paper": "--"}
+    for level, cases in data["levels"].items():
+        for case, runs in cases.items():
+            s = runs["coupled"]["series"]
+            for ax, (key, scale, unit, title) in zip(axes.flat, PANELS, strict=True):
+                if key in s:
+                    kw = {"color": colours[case], "ls": styles.get(level, "-")}
+                    ax.plot(
+                        s[key]["x"],
+                        [v * scale for v in s[key]["y"]],
+                        **kw,
+                        label=f"{case}, {level}",
+                    )
+                ax.set(xlabel="internal rotation (deg)", ylabel=unit, title=title)
+        edge = next(iter(cases.values()))["coupled"]["cap_half_angle_deg"]
+    axes.flat[5].axhline(edge, color="k", lw=0.8)
+    axes.flat[5].text(2, edge + 1, "edge of the humeral cartilage", fontsize=7)
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(
+        "coupled method; whole = the scene (paper's supports, cuff on the head), earlier = "
+        "+ horizontal elements, no muscle contact; supports / cuff = one change each",
+        fontsize=9,
+    )
+    save_figure(fig, path)
+
+
+def main() -> None:
+    matplotlib.use("Agg")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--levels", nargs="+", default=["coarse", "medium"])
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = ap.parse_args()
+    data = {"scene": "shoulder-internal-rotation", "variants": VARIANTS, "levels": {}}
+    with tempfile.TemporaryDirectory(prefix="model-changes-") as tmp:
+        for level in args.levels:
+            cases = {}
+            for case in args.variants:
+                cases[case] = {
+                    m: one(level, VARIANTS[case], m, Path(tmp) / f"{level}-{case}-{m}")
+                    for m in METHODS
+                }
+                print(level, case, {m: cases[case][m]["status"] for m in METHODS}, flush=True)
+            data["levels"][level] = cases
+    args.out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(args.out / "model_changes.json", data)
+    plot(data, args.out / "model_changes.png")
+
+
+if __name__ == "__main__":
+    main()

@@ -325,21 +325,21 @@ def test_rigid_regions_turn_a_newton_step_by_a_finite_rotation():
     u, residual, surfaces = small_block(comm)
     plate = RigidBody("plate", (0.001, -0.002, 0.04))
     plate.translation = np.array([1e-4, 2e-4, -3e-4])
+    foot = RigidBody("foot", (0.0, 0.0, 0.0))  # a second body: the region's ties, gathered
     V = u.function_space
     n_all = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
     system = RigidSystem(
-        [plate],
-        [],
+        [plate, foot],
+        [Spring("hold", "foot", (0.0, 0.0, 0.0), GROUND, (0.0, 0.0, -0.1), 1e3)],
         u=u,
         residual=residual,
         surfaces=surfaces,
-        ties=[Tie("plate", "top")],
-        fixed=["base"],
+        ties=[Tie("plate", "top"), Tie("foot", "base")],
         rigid_regions=[np.arange(n_all)],
     )
     regions = system.rigid_regions
     lay = regions.layout
-    assert list(regions.tied[0]) == [0]  # the plate is tied to the region
+    assert list(regions.tied[0]) == [0, 1]  # both plates are tied to the region
     rng = np.random.default_rng(3 + comm.rank)
     n = lay.n_free_local
     x = np.zeros(lay.n_local)

@@ -77,9 +77,10 @@ class RigidRegions:
         #: Per region, the bodies tied to it.
         self.tied = []
         for r in regions:
-            mine = [bool(np.isin(t, np.asarray(r)).any()) for t in layout.tied_nodes]
-            tied = self.comm.allreduce(np.array(mine, dtype=bool), op=MPI.LOR)
-            self.tied.append(np.flatnonzero(tied) if len(mine) else np.zeros(0, dtype=int))
+            mine = [int(np.isin(t, np.asarray(r)).any()) for t in layout.tied_nodes]
+            tied = np.array(mine, dtype=np.int64)
+            self.comm.Allreduce(MPI.IN_PLACE, tied, op=MPI.MAX)
+            self.tied.append(np.flatnonzero(tied))
 
     def correct(self, x: np.ndarray, d: np.ndarray) -> float:
         """Add each region's finite-rotation correction to the step ``d`` in place.

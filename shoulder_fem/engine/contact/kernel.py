@@ -121,7 +121,7 @@ class Kernel:
         mu = np.ascontiguousarray(rule[0], dtype=np.float64)
         w = np.ascontiguousarray(rule[1], dtype=np.float64)
         M = len(P)
-        cap = max(1024, 2 * len(w) * M)
+        cap = max(1024, 4 * len(w) * M)  # the centroid fan: a triangle per polygon vertex
         while True:
             rr = np.empty(cap, dtype=np.int64)
             lam, beta, W = np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap)

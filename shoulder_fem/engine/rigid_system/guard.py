@@ -36,8 +36,8 @@ class TrialGuard:
         comm: The communicator.
         max_halvings: Halvings allowed per Newton step.
         correct: Callable(x, y) -> bool applied to every Newton step first (changes ``y`` in
-            place; True if it did), e.g. :meth:`~.corotation.RigidRegions.correct` on the
-            free block; None: none.
+            place; True if it did), e.g. :meth:`~.corotation.RigidRegions.precheck`; None:
+            none.
     """
 
     def __init__(

@@ -223,7 +223,9 @@ class RigidSystem(SystemReports, ControlledSystem):
         )
         self.prefix = unique_prefix(name)
         #: The stiff regions whose Newton steps turn by finite rotations, or None.
-        self.rigid_regions = RigidRegions(layout, self.bodies, rigid_regions) or None
+        self.rigid_regions = (
+            RigidRegions(layout, self.bodies, rigid_regions) if len(rigid_regions) else None
+        )
         # every Newton step is corrected (rigid_regions), then shortened until its trial state
         # is admissible with a finite residual (guard.py)
         fix = self.rigid_regions.precheck if self.rigid_regions else None

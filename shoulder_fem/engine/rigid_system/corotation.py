@@ -78,13 +78,14 @@ class RigidRegions:
         self.layout = layout
         self.bodies = list(bodies)
         free = layout.free_nodes
+        regions = [np.asarray(r) for r in regions]
         #: Per region, the positions of its nodes in the free block (3 entries each).
-        self.index = [np.flatnonzero(np.isin(free, np.asarray(r))) for r in regions]
+        self.index = [np.flatnonzero(np.isin(free, r)) for r in regions]
         self.X = [layout.X[free[i]] for i in self.index]
         #: Per region, the bodies tied to it.
         self.tied = []
         for r in regions:
-            mine = [int(np.isin(t, np.asarray(r)).any()) for t in layout.tied_nodes]
+            mine = [int(np.isin(t, r).any()) for t in layout.tied_nodes]
             tied = np.array(mine, dtype=np.int64)
             self.comm.Allreduce(MPI.IN_PLACE, tied, op=MPI.MAX)
             # a prescribed body keeps its prescription (its rows are identities)

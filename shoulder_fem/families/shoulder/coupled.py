@@ -59,12 +59,8 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     # strains the stiff bone; engine/rigid_system/corotation.py; with the cartilages in the
     # regions too, measured at coarse: 2 cut-backs over 0-60 deg instead of 1)
     bones = [
-        np.unique(
-            np.concatenate(
-                [dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(m.id)) for m in group]
-            )
-        )
-        for group in ((S.HUMERUS,), (S.SCAPULA,))
+        dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(bone.id))
+        for bone in (S.HUMERUS, S.SCAPULA)
     ]
     system = RigidSystem(
         bodies,
@@ -80,8 +76,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         admissible=check,
         rigid_regions=bones,
     )
-    humerus_dofs = dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(S.HUMERUS.id))
-    humerus_dofs = humerus_dofs[humerus_dofs < V.dofmap.index_map.size_local]
+    humerus_dofs = bones[0][bones[0] < V.dofmap.index_map.size_local]
     X_h = V.tabulate_dof_coordinates()[humerus_dofs]
 
     def rotation() -> np.ndarray:

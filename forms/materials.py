@@ -45,6 +45,7 @@ __all__ = [
     "MUSCLE_BETA",
     "MUSCLE_NU",
     "Hyperelastic",
+    "Isochoric",
     "LinearElastic",
     "NeoHookean",
     "SaintVenantKirchhoff",
@@ -287,10 +288,15 @@ class NeoHookean(Hyperelastic):
         """(shear modulus 2 C10, bulk modulus kappa), Pa."""
         return 2 * self.c10, self.bulk_modulus
 
+    def isochoric_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+        """The isochoric part C10 (I1bar - 3), J/m^3."""
+        i1bar, _, _ = isochoric_invariants(C)
+        return self.c10 * (i1bar - 3)
+
     def strain_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
         """W(C) = C10 (I1bar - 3) + kappa/2 (ln J)^2, J/m^3."""
-        i1bar, _, J = isochoric_invariants(C)
-        return self.c10 * (i1bar - 3) + _volumetric_energy(self.bulk_modulus, J)
+        _, _, J = isochoric_invariants(C)
+        return self.isochoric_energy(C) + _volumetric_energy(self.bulk_modulus, J)
 
 
 @dataclass(frozen=True)
@@ -331,15 +337,38 @@ class VerondaWestmann(Hyperelastic):
         """(shear modulus alpha beta, bulk modulus kappa), Pa."""
         return self.alpha * self.beta, self.bulk_modulus
 
+    def isochoric_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+        """The isochoric part alpha (exp[beta (I1bar - 3)] - 1) - alpha beta/2 (I2bar - 3)."""
+        i1bar, i2bar, _ = isochoric_invariants(C)
+        a, b = self.alpha, self.beta
+        return a * (ufl.exp(b * (i1bar - 3)) - 1) - a * b / 2 * (i2bar - 3)
+
     def strain_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
         """W(C) as in the class docstring, J/m^3."""
-        i1bar, i2bar, J = isochoric_invariants(C)
-        a, b = self.alpha, self.beta
-        return (
-            a * (ufl.exp(b * (i1bar - 3)) - 1)
-            - a * b / 2 * (i2bar - 3)
-            + _volumetric_energy(self.bulk_modulus, J)
-        )
+        _, _, J = isochoric_invariants(C)
+        return self.isochoric_energy(C) + _volumetric_energy(self.bulk_modulus, J)
+
+
+@dataclass(frozen=True)
+class Isochoric(Hyperelastic):
+    """The isochoric part of a nearly incompressible law (its volumetric part taken elsewhere).
+
+    For a mixed or mean-dilatation formulation (:mod:`shoulder_fem.engine.mean_dilatation`),
+    which carries the volumetric energy kappa/2 (ln theta)^2 on a pressure space of its own.
+
+    Attributes:
+        law: A :class:`NeoHookean` or :class:`VerondaWestmann` law.
+    """
+
+    law: NeoHookean | VerondaWestmann
+
+    def strain_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+        """The law's isochoric energy, J/m^3."""
+        return self.law.isochoric_energy(C)
+
+    def small_strain_moduli(self) -> tuple[Scalar, Scalar]:
+        """(the law's shear modulus, 0), Pa."""
+        return self.law.small_strain_moduli()[0], 0.0
 
 
 def von_mises(stress: ufl.core.expr.Expr) -> ufl.core.expr.Expr:

@@ -275,6 +275,11 @@ class NonlinearSolver:
         form_compiler_params: passed to ``dolfinx.fem.form`` (e.g. quadrature_degree).
         contact: a :class:`~shoulder_fem.engine.contact.Contact` on ``u``: its forces are added
             to every residual and its tangent to every Jacobian (built with the same ``bcs``).
+        volumetric: a :class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation` on ``u``
+            whose :meth:`residual` is part of ``residual``: updated before every residual and
+            Jacobian, its cell-mean tangent added to every Jacobian. The ``bcs`` then clear
+            the rows of the Jacobian only (no lifting: the Dirichlet columns stay, so a Newton
+            step moves the other DOFs with the prescribed ones; the matrix is not symmetric).
     """
 
     def __init__(
@@ -292,7 +297,11 @@ class NonlinearSolver:
         lagged_factorization: bool = False,
         max_lagged_iterations: int = 8,
         contact=None,
+        volumetric=None,
     ):
+        self.volumetric = volumetric
+        if volumetric is not None and (linear or operator is not None or lagged_factorization):
+            raise ValueError("volumetric terms need a nonlinear solve with an assembled Jacobian")
         if contact is not None and (linear or operator is not None or lagged_factorization):
             raise ValueError("contact terms need a nonlinear solve with an assembled Jacobian")
         self.contact = contact
@@ -354,10 +363,13 @@ class NonlinearSolver:
 
     def _residual(self, snes: PETSc.SNES, x: PETSc.Vec, b: PETSc.Vec) -> None:
         self._copy_in(x)
+        if self.volumetric is not None:
+            self.volumetric.update()
         with b.localForm() as b_local:
             b_local.set(0.0)
         fem_petsc.assemble_vector(b, self._F)
-        fem_petsc.apply_lifting(b, [self._J], bcs=[self.bcs], x0=[x], scale=-1.0)
+        if self.volumetric is None:
+            fem_petsc.apply_lifting(b, [self._J], bcs=[self.bcs], x0=[x], scale=-1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         if self.contact is not None:
             self.contact.add_residual(b)
@@ -374,10 +386,13 @@ class NonlinearSolver:
             self._fill_operator(A)
         else:
             A.zeroEntries()
-            fem_petsc.assemble_matrix(A, self._J, bcs=self.bcs)
+            bcs = self.bcs if self.volumetric is None else []  # its rows: _add_volumetric
+            fem_petsc.assemble_matrix(A, self._J, bcs=bcs)
             A.assemble()
             if self.contact is not None:
                 self.contact.add_jacobian(A)
+            if self.volumetric is not None:
+                self._add_volumetric(A)
         self._operator_changed = False
         refactor = self._refactor or not self._lagged
         # Lagged: the preconditioner matrix P is a separate copy, updated only to refactor;
@@ -391,6 +406,14 @@ class NonlinearSolver:
         if refactor:
             self.stats.factorizations += 1
             self._refactor = False
+
+    def _add_volumetric(self, A: PETSc.Mat) -> None:
+        """Add the volumetric cell-mean tangent to ``A``, then make the Dirichlet rows identity."""
+        self.volumetric.update()
+        self.volumetric.add_tangent(A)
+        rows = [bc.dof_indices()[0] for bc in self.bcs]
+        if rows:
+            A.zeroRowsLocal(np.unique(np.concatenate(rows)).astype(PETSc.IntType), 1.0)
 
     # -- public API ------------------------------------------------------------------------
     def operator_changed(self) -> None:

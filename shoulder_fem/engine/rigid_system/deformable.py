@@ -34,6 +34,9 @@ class DeformablePart:
         contact: Contact terms on ``u`` (built with no Dirichlet conditions), or ``None``:
             added to F and, by :meth:`contact_tangent`, to K.
         layout: The system's layout (which nodes are free, tied, fixed).
+        volumetric: A :class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation` on ``u``
+            whose residual is part of ``residual``, or ``None``: updated before every residual
+            and tangent, its cell-mean tangent added to K.
     """
 
     def __init__(
@@ -44,8 +47,10 @@ class DeformablePart:
         form_compiler_params: dict | None,
         contact,
         layout: ReducedLayout,
+        volumetric=None,
     ) -> None:
         self.u = u
+        self.volumetric = volumetric
         self.contact = contact
         self.layout = layout
         fco = form_compiler_params or {}
@@ -70,6 +75,8 @@ class DeformablePart:
     def assemble_residual(self) -> None:
         """Assemble F at the current ``u`` (contact added; ghosts updated)."""
         self.residual_assemblies += 1
+        if self.volumetric is not None:
+            self.volumetric.update()
         with self.F.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.F, self.F_form)
@@ -94,6 +101,8 @@ class DeformablePart:
         linear problem assembles once and does not hold a second copy of its tangent through
         its factorization.
         """
+        if self.volumetric is not None:
+            self.volumetric.update()
         constants = dolfinx.cpp.fem.pack_constants(self.J_form)
         coefficients = dolfinx.cpp.fem.pack_coefficients(self.J_form)
         if self.K is not None and self._same_inputs(constants, coefficients):
@@ -110,6 +119,8 @@ class DeformablePart:
             self.K = Kb.convert(PETSc.Mat.Type.AIJ, PETSc.Mat())
         else:
             Kb.convert(PETSc.Mat.Type.AIJ, self.K)
+        if self.volumetric is not None:
+            self.volumetric.add_tangent(self.K)
         if self.tangent_assemblies < 2:
             Kb.destroy()
             self._K_blocks = None

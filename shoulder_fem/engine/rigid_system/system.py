@@ -150,6 +150,9 @@ class RigidSystem(SystemReports, ControlledSystem):
         rigid_regions: Stiff regions of the deformable body (per region, local node indices,
             e.g. a bone's cells' nodes) whose share of every Newton step is made
             a finite rotation (:mod:`~.corotation`); the converged states are unchanged.
+        volumetric: The mean-dilatation terms of nearly incompressible cells of ``u``
+            (:class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`), whose residual
+            is part of ``residual``.
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -181,6 +184,7 @@ class RigidSystem(SystemReports, ControlledSystem):
         admissible: Callable[[], bool] | None = None,
         near_nullspace: bool = False,
         rigid_regions: Sequence[np.ndarray] = (),
+        volumetric=None,
     ) -> None:
         self.bodies = list(bodies)
         self.linear_ties = bool(linear_ties)
@@ -210,7 +214,9 @@ class RigidSystem(SystemReports, ControlledSystem):
         layout = ReducedLayout(self.comm, self.bodies, self.ties, V, surfaces, fixed)
         self._fe = None
         if u is not None:
-            self._fe = DeformablePart(u, residual, jacobian, form_compiler_params, contact, layout)
+            self._fe = DeformablePart(
+                u, residual, jacobian, form_compiler_params, contact, layout, volumetric
+            )
         ends = [
             layout.spring_end(s, i, self._index, self.deformable)
             for s in self.springs

@@ -44,7 +44,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     comm = mesh.comm
     rho, E = bone_fields(mesh, ct_, model.image, p)
     bone = materials.SaintVenantKirchhoff(E, materials.BONE_NU)
-    F = soft_tissue_residual(u, w, dx)
+    F, volumetric = soft_tissue_residual(u, w, dx, ct_, p)
     F += vp.internal_power_finite(bone, u, w, dx(S.HUMERUS.id))
     F += vp.internal_power_finite(bone, u, w, dx(S.SCAPULA.id))
     contact = joint_contact(V, u, ft, p)
@@ -74,6 +74,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         form_compiler_params=p.quadrature(),
         contact=contact,
         admissible=check,
+        volumetric=volumetric,
         rigid_regions=bones,
     )
     humerus_dofs = bones[0][bones[0] < V.dofmap.index_map.size_local]
@@ -84,7 +85,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         return best_fit_rotation(X_h, x, comm)
 
     stress_vm = VonMises(mesh, ct_, cauchy_stress(bone, u), p.nodal_stress)
-    probe = Probe(u, ct_, ft, contact, p)
+    probe = Probe(u, ct_, ft, contact, p, volumetric)
     job = Stepping(
         system=system,
         contact=contact,
@@ -102,4 +103,6 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     run.recorder.extra("dofs_coupled", unknowns(system))
     save_results(model, data, stress_vm, mesh, ft, run.fields.parent / "shoulder.npz")
     probe.destroy()
+    if volumetric is not None:
+        volumetric.destroy()
     system.destroy()

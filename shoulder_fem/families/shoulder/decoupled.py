@@ -210,7 +210,7 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
     d = displacement(model, "rigid-bone")
     mesh, ct_, ft, V, u, w, dx = d.mesh, d.cell_tags, d.facet_tags, d.V, d.u, d.w, d.dx
     comm = mesh.comm
-    F = soft_tissue_residual(u, w, dx)
+    F, volumetric = soft_tissue_residual(u, w, dx, ct_, p)
     contact = joint_contact(V, u, ft, p)
     humerus = RigidBody("humerus", np.zeros(3))
     scapula_ref = patch_centroid(mesh, ft, S.MARKERS["glenoid_cartilage_bone"].id)
@@ -232,10 +232,11 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
         form_compiler_params=p.quadrature(),
         contact=contact,
         admissible=check,
+        volumetric=volumetric,
     )
     transfer = Transfer(reference=scapula_ref)
     record = _TransferRecorder(V, ft, system, (scapula, humerus), transfer)
-    probe = Probe(u, ct_, ft, contact, p)
+    probe = Probe(u, ct_, ft, contact, p, volumetric)
     job = Stepping(
         system=system,
         contact=contact,
@@ -253,6 +254,8 @@ def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tupl
     run.recorder.extra("dofs_part1", unknowns(system))
     transfer.points = gather_rows(record.X_load, comm)
     probe.destroy()
+    if volumetric is not None:
+        volumetric.destroy()
     system.destroy()
     transfer.save(run.fields.parent / "transfer.npz", comm)
     return data, transfer

@@ -15,6 +15,7 @@ import numpy as np
 import ufl
 
 from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
+from shoulder_fem.engine.mean_dilatation import MeanDilatation
 from shoulder_fem.engine.rigid_system import RigidBody, Tie
 from shoulder_fem.engine.springs import GROUND, Spring
 from shoulder_fem.families.shoulder.geometry import marker_names, surface_centroid, unit
@@ -37,6 +38,7 @@ __all__ = [
     "joint_contact",
     "modulus_factors",
     "muscle_forms",
+    "soft_tissue_laws",
     "soft_tissue_residual",
     "spring_layout",
     "spring_plates",
@@ -209,22 +211,64 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
 # ---- materials and forms --------------------------------------------------------------------
 
 
-def soft_tissue_residual(u, w, dx) -> ufl.Form:
-    """Internal virtual power of the cartilages and the muscles (finite strain)."""
+def soft_tissue_laws(params: ShoulderParameters) -> tuple:
+    """(cartilage law, muscle law) of ``soft_tissue_formulation``, nearly incompressible.
+
+    ``incompressible`` (Table I): kappa = ``soft_tissue_bulk_ratio`` x the law's shear modulus
+    (the volumetric part goes to :class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`);
+    ``compressible`` (the earlier model): the cartilage's nu = 0.4 and the muscle's 0.49.
+    """
     cart, musc = materials.NeoHookean.cartilage(), materials.VerondaWestmann.muscle()
-    F = vp.internal_power_finite(cart, u, w, dx(S.HUMERAL_CARTILAGE.id))
-    F += vp.internal_power_finite(cart, u, w, dx(S.GLENOID_CARTILAGE.id))
-    for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS):
-        F += vp.internal_power_finite(musc, u, w, dx(m.id))
-    return F
+    if params.soft_tissue_formulation == "compressible":
+        return cart, musc
+    ratio = params.soft_tissue_bulk_ratio
+    return (
+        materials.NeoHookean(cart.c10, ratio * cart.small_strain_moduli()[0]),
+        materials.VerondaWestmann(musc.alpha, musc.beta, ratio * musc.small_strain_moduli()[0]),
+    )
 
 
-def muscle_forms(u, w, dx) -> dict:
-    """Each muscle's internal virtual power, compiled, by muscle name."""
-    musc = materials.VerondaWestmann.muscle()
+def soft_tissue_residual(
+    u, w, dx, cell_tags, params: ShoulderParameters
+) -> tuple[ufl.Form, MeanDilatation | None]:
+    """Internal virtual power of the cartilages and the muscles (finite strain).
+
+    Returns:
+        The form and, with ``soft_tissue_formulation = incompressible``, its mean-dilatation
+        terms (P2/P0: their residual is in the form; the solver adds their tangent), else
+        ``None`` (pure P2 displacement).
+    """
+    cart, musc = soft_tissue_laws(params)
+    bodies = [(S.HUMERAL_CARTILAGE, cart), (S.GLENOID_CARTILAGE, cart)]
+    bodies += [(m, musc) for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS)]
+    if params.soft_tissue_formulation == "compressible":
+        return sum(vp.internal_power_finite(law, u, w, dx(b.id)) for b, law in bodies), None
+    volumetric = MeanDilatation(
+        u,
+        cell_tags,
+        {b.id: law.bulk_modulus for b, law in bodies},
+        dx,
+        form_compiler_params=params.quadrature(),
+    )
+    F = sum(vp.internal_power_finite(materials.Isochoric(law), u, w, dx(b.id)) for b, law in bodies)
+    return F + volumetric.residual(w), volumetric
+
+
+def muscle_forms(u, w, dx, params: ShoulderParameters, volumetric=None) -> dict:
+    """Each muscle's internal virtual power, compiled, by muscle name.
+
+    With ``volumetric`` (:func:`soft_tissue_residual`'s), the muscle's mean-dilatation part is
+    in it: call ``volumetric.update()`` before assembling.
+    """
+    _, musc = soft_tissue_laws(params)
     out = {}
     for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS):
-        out[m.name] = dolfinx.fem.form(vp.internal_power_finite(musc, u, w, dx(m.id)))
+        if volumetric is None:
+            form = vp.internal_power_finite(musc, u, w, dx(m.id))
+        else:
+            form = vp.internal_power_finite(materials.Isochoric(musc), u, w, dx(m.id))
+            form += volumetric.residual(w, (m.id,))
+        out[m.name] = dolfinx.fem.form(form, form_compiler_params=params.quadrature())
     return out
 
 

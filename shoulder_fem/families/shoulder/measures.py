@@ -27,19 +27,46 @@ from shoulder_fem.meshes import shoulder as S
 __all__ = ["REPORTED_MUSCLES", "Probe", "VonMises", "cap_contact_angles"]
 
 REPORTED_MUSCLES = ("subscapularis", "supraspinatus", "infraspinatus")
+#: The soft bodies whose volume change is reported.
+SOFT_BODIES = (
+    S.HUMERAL_CARTILAGE,
+    S.GLENOID_CARTILAGE,
+    S.SUBSCAPULARIS,
+    S.SUPRASPINATUS,
+    S.INFRASPINATUS,
+)
 
 
 class Probe:
     """Per-output measurements shared by both methods (collective)."""
 
-    def __init__(self, u, cell_tags, facet_tags, contact: Contact, params: ShoulderParameters):
+    def __init__(
+        self,
+        u,
+        cell_tags,
+        facet_tags,
+        contact: Contact,
+        params: ShoulderParameters,
+        volumetric=None,
+    ):
         V = u.function_space
+        #: The soft tissue's mean-dilatation terms (or None): updated before the muscle forces.
+        self.volumetric = volumetric
         mesh = V.mesh
         self.u, self.V, self.mesh, self.contact = u, V, mesh, contact
         self.cell_tags = cell_tags
         self.comm = mesh.comm
         dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=params.quadrature())
-        self._muscle = muscle_forms(u, ufl.TestFunction(V), dx)
+        self._muscle = muscle_forms(u, ufl.TestFunction(V), dx, params, volumetric)
+        J = ufl.det(ufl.Identity(3) + ufl.grad(u))
+        fco = params.quadrature()
+        self._volume = {}  # soft body -> (current volume form, reference volume m^3)
+        for b in SOFT_BODIES:
+            ref = dolfinx.fem.assemble_scalar(dolfinx.fem.form(1.0 * dx(b.id)))
+            self._volume[b.name] = (
+                dolfinx.fem.form(J * dx(b.id), form_compiler_params=fco),
+                self.comm.allreduce(ref, op=MPI.SUM),
+            )
         self._vec = fem_petsc.create_vector(next(iter(self._muscle.values())))
         n_owned = V.dofmap.index_map.size_local
         self._origin = {}
@@ -58,6 +85,8 @@ class Probe:
     def muscle_forces(self) -> dict[str, np.ndarray]:
         """Force (N, vector) each muscle applies to its origin plate or bone footprint."""
         out = {}
+        if self.volumetric is not None:
+            self.volumetric.update()
         for name, form in self._muscle.items():
             with self._vec.localForm() as loc:
                 loc.set(0.0)
@@ -65,6 +94,14 @@ class Probe:
             self._vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             f = self._vec.array_r.reshape(-1, 3)[self._origin[name]].sum(axis=0)
             out[name] = -self.comm.allreduce(f, op=MPI.SUM)
+        return out
+
+    def volume_changes(self) -> dict[str, float]:
+        """Relative volume change ∫J dx / |Ω| − 1 of each soft body, by name (collective)."""
+        out = {}
+        for name, (form, ref) in self._volume.items():
+            now = self.comm.allreduce(dolfinx.fem.assemble_scalar(form), op=MPI.SUM)
+            out[name] = now / ref - 1.0
         return out
 
     def glenoid(self, pressure, shear) -> tuple[np.ndarray, np.ndarray]:

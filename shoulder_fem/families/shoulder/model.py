@@ -59,6 +59,8 @@ class ShoulderParameters:
     muscle_contact_depth: float
     muscle_contact_smoothing: float
     contact_quadrature: int
+    soft_tissue_formulation: str
+    soft_tissue_bulk_ratio: float
     quadrature_degree: int
     spring_length: float
     scapula_spring_stiffness: float

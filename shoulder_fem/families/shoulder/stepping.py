@@ -510,6 +510,8 @@ class AngleOutputs:
         forces = self.job.probe.muscle_forces()
         for m, f in forces.items():
             self.recorder.add_series_point(f"{m}_force", x, float(np.linalg.norm(f)), "deg", "N")
+        for body, change in self.job.probe.volume_changes().items():
+            self.recorder.add_series_point(f"{body}_volume_change", x, change, "deg", "1")
         travel = float(np.linalg.norm(self.job.actuator.translation))
         self.recorder.add_series_point("actuation", x, travel, "deg", "m")
         # the humerus's supports: Σ|tension| of the 4 vertical and of the horizontal elements

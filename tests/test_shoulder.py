@@ -954,6 +954,39 @@ def test_a_jacobian_rebuilt_without_stale_contact_entries_gives_the_same_solves(
     assert grown[2][-1]["J"] > last["J"], (grown[2][-1], last)
 
 
+def test_nearly_incompressible_tissue_is_seated_by_continuation(tmp_path_factory, monkeypatch):
+    """The unloaded solve with incompressible soft tissue (kappa/mu = 1000): a continuation in
+    the bulk modulus (x 10 per solve from kappa/mu = 10). The factors by hand; at kappa/mu = 100,
+    which also seats directly, the continuation's state is the direct solve's to the solver's
+    tolerance (|F| <= 1e-3 N); at 1000 the direct solve fails at 0 deg (measured:
+    DIVERGED_MAX_IT) and the continuation seats the joint (decoupled, coarse, to 0.5 deg)."""
+    from shoulder_fem.families.shoulder import seating
+
+    assert seating.bulk_factors(None) == [1.0] and seating.bulk_factors(10.0) == [1.0]
+    assert np.allclose(seating.bulk_factors(1000.0), [0.01, 0.1, 1.0], rtol=1e-12)
+    comm = MPI.COMM_WORLD
+    base = Path(comm.bcast(str(tmp_path_factory.mktemp("seat_bulk")), root=0))
+
+    def run(ratio: float, direct: bool, name: str):
+        monkeypatch.setattr(seating, "SEATING_BULK_RATIO", 1e30 if direct else 10.0)
+        scene = load_scene("shoulder-internal-rotation").with_overrides(
+            [
+                "soft_tissue_formulation=incompressible",
+                f"soft_tissue_bulk_ratio={ratio:g}",
+                "final_angle=0.5deg",
+            ]
+        )
+        return api.run(scene, "decoupled", "coarse", base / name, comm=comm)
+
+    direct, stages = run(100.0, True, "direct"), run(100.0, False, "stages")
+    for key in ("contact_force", "subscapularis_force", "infraspinatus_force"):
+        a, b = _series(direct, key)[1], _series(stages, key)[1]
+        assert np.abs(a - b).max() <= 1e-3, (key, a, b)
+    with pytest.raises(api.RunFailed, match="0 deg"):
+        run(1000.0, True, "whole_direct")
+    assert run(1000.0, False, "whole").status == "ok"
+
+
 def test_a_stiff_contact_penalty_is_seated_by_continuation(tmp_path_factory, monkeypatch):
     """The unloaded solve with a penalty above 5 MPa/mm: a continuation in the penalty (x 3 per
     solve). The factors by hand; on the earlier model (the horizontal distal elements, no

@@ -300,6 +300,8 @@ class NonlinearSolver:
         volumetric=None,
     ):
         self.volumetric = volumetric
+        #: The Jacobian form's own matrix when the volumetric tangent widens A's pattern.
+        self._A_form: PETSc.Mat | None = None
         if volumetric is not None and (linear or operator is not None or lagged_factorization):
             raise ValueError("volumetric terms need a nonlinear solve with an assembled Jacobian")
         if contact is not None and (linear or operator is not None or lagged_factorization):
@@ -385,12 +387,26 @@ class NonlinearSolver:
                 A.assemble()
             self._fill_operator(A)
         else:
-            A.zeroEntries()
+            # a volumetric tangent that couples cells widens A's pattern: the form is then
+            # assembled into a matrix of its own (A, rebuilt, has no local numbering left)
+            widens = self.volumetric is not None and not self.volumetric.cell_local
+            if widens and self._A_form is None:
+                self._A_form = fem_petsc.create_matrix(self._J)
+            target = self._A_form if widens else A
+            target.zeroEntries()
             bcs = self.bcs if self.volumetric is None else []  # its rows: _add_volumetric
-            fem_petsc.assemble_matrix(A, self._J, bcs=bcs)
-            A.assemble()
+            fem_petsc.assemble_matrix(target, self._J, bcs=bcs)
+            target.assemble()
             if self.contact is not None:
-                self.contact.add_jacobian(A)
+                self.contact.add_jacobian(target)
+            if widens:
+                kind = PETSc.Mat.Structure
+                first = not A.assembled  # A has no entries yet: it takes the form's pattern
+                if first:
+                    A.assemble()
+                A.zeroEntries()
+                pattern = kind.DIFFERENT_NONZERO_PATTERN if first else kind.SUBSET_NONZERO_PATTERN
+                A.axpy(1.0, target, structure=pattern)
             if self.volumetric is not None:
                 self._add_volumetric(A)
         self._operator_changed = False
@@ -412,8 +428,14 @@ class NonlinearSolver:
         self.volumetric.update()
         self.volumetric.add_tangent(A)
         rows = [bc.dof_indices()[0] for bc in self.bcs]
-        if rows:
-            A.zeroRowsLocal(np.unique(np.concatenate(rows)).astype(PETSc.IntType), 1.0)
+        if rows:  # global numbers (a widened A may have lost its local-to-global map)
+            V = self.u.function_space
+            imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
+            local = np.unique(np.concatenate(rows))
+            local = local[local < imap.size_local * bs]
+            nodes = imap.local_to_global(local // bs)
+            A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)  # the next fills
+            A.zeroRows((nodes * bs + local % bs).astype(PETSc.IntType), 1.0)
 
     # -- public API ------------------------------------------------------------------------
     def operator_changed(self) -> None:
@@ -469,8 +491,9 @@ class NonlinearSolver:
 
     def destroy(self) -> None:
         """Free the PETSc objects."""
-        for obj in (self.snes, self._A, self._b, self._x):
-            obj.destroy()
+        for obj in (self.snes, self._A, self._b, self._x, self._A_form):
+            if obj is not None:
+                obj.destroy()
         if self._P is not self._A:
             self._P.destroy()
 

@@ -119,8 +119,8 @@ class DeformablePart:
             self.K = Kb.convert(PETSc.Mat.Type.AIJ, PETSc.Mat())
         else:
             Kb.convert(PETSc.Mat.Type.AIJ, self.K)
-        if self.volumetric is not None:
-            self.volumetric.add_tangent(self.K)
+        if self.volumetric is not None and self.volumetric.cell_local:
+            self.volumetric.add_tangent(self.K)  # else the system adds it (couples cells)
         if self.tangent_assemblies < 2:
             Kb.destroy()
             self._K_blocks = None

@@ -119,11 +119,17 @@ class ContactProduct:
         #: The entries merged into the Jacobian's pattern so far (:func:`add_to_pattern`).
         self.keys = np.zeros(0, dtype=np.int64)
 
-    def add(self, J: PETSc.Mat, fe: DeformablePart, P: PETSc.Mat, stats: SolveStats) -> None:
-        """J += Pᵀ K_c P at the current state (K_c from ``fe``; collective)."""
+    def add(
+        self, J: PETSc.Mat, fe: DeformablePart, P: PETSc.Mat, stats: SolveStats, tangent=None
+    ) -> None:
+        """J += Pᵀ K_c P at the current state (collective).
+
+        K_c: ``tangent(last)`` -- the last matrix refilled, or a new one -- or, by default,
+        ``fe``'s contact tangent.
+        """
         from shoulder_fem.engine.contact import add_to_pattern
 
-        K = fe.contact_tangent(self.K)
+        K = (tangent or fe.contact_tangent)(self.K)
         with timed(stats, "reduction_s"):
             if K is self.K:  # the last one's pattern: so is the product's
                 K.PtAP(P, self.C)
@@ -184,6 +190,8 @@ class ReducedProblem:
         self.step_state, self.stats, self.linear_ties = step_state, stats, linear_ties
         self.comm = layout.comm
         self.contact = ContactProduct(self.comm)
+        #: The soft tissue's volumetric tangent when it couples across cells (P1 pressure).
+        self.volumetric = ContactProduct(self.comm)
         self.R0 = [b.rotation.copy() for b in bodies]
         self.phi = np.zeros((len(bodies), 3))
         self.x = PETSc.Vec().createMPI((layout.n_local, layout.n_global), comm=self.comm)
@@ -415,6 +423,9 @@ class ReducedProblem:
             J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         if fe.contact is not None:
             self.contact.add(J, fe, self.P, self.stats)
+        vol = fe.volumetric
+        if vol is not None and not vol.cell_local:
+            self.volumetric.add(J, fe, self.P, self.stats, lambda last: vol.tangent_matrix())
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------
     def _create_jacobian(self) -> PETSc.Mat:
@@ -439,6 +450,7 @@ class ReducedProblem:
         if self.fe is not None:
             objs += [self.P, self.C]
         self.contact.destroy()
+        self.volumetric.destroy()
         for obj in objs:
             obj.destroy()
 
@@ -449,6 +461,8 @@ def jacobian_is_stale(problem: ReducedProblem) -> bool:
         return False
     info = PETSc.Mat.InfoType.GLOBAL_SUM
     needed = problem.C.getInfo(info)["nz_used"] + problem.contact.C.getInfo(info)["nz_used"]
+    if problem.volumetric.C is not None:  # a P1 pressure's couplings (fixed: never stale)
+        needed += problem.volumetric.C.getInfo(info)["nz_used"]
     return problem.J.getInfo(info)["nz_used"] > (1.0 + STALE_FRACTION) * needed
 
 
@@ -473,6 +487,9 @@ def rebuild_jacobian(problem: ReducedProblem) -> None:
     problem.stats.pattern_rebuilds += 1
     empty = np.zeros(0, np.int64)
     problem.contact.keys = add_to_pattern(problem.J, problem.contact.C, empty, problem.comm)
+    if problem.volumetric.C is not None:
+        vol = problem.volumetric
+        vol.keys = add_to_pattern(problem.J, vol.C, empty, problem.comm)
     problem.J.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
     problem.reset_analysis()
 

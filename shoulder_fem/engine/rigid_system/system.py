@@ -244,6 +244,11 @@ class RigidSystem(SystemReports, ControlledSystem):
         self._fresh_jacobians = int((options or {}).get("snes_lag_jacobian", 1)) == 1
 
     @property
+    def volumetric(self):
+        """The deformable part's mean-dilatation terms, or ``None``."""
+        return self._fe.volumetric if self._fe is not None else None
+
+    @property
     def dynamic(self) -> bool:
         """Whether :meth:`step` integrates the bodies that have a mass (``dynamic=True``)."""
         return self._step.dynamic

@@ -249,6 +249,7 @@ def soft_tissue_residual(
         {b.id: law.bulk_modulus for b, law in bodies},
         dx,
         form_compiler_params=params.quadrature(),
+        pressure=params.soft_tissue_pressure,
     )
     F = sum(vp.internal_power_finite(materials.Isochoric(law), u, w, dx(b.id)) for b, law in bodies)
     return F + volumetric.residual(w), volumetric

@@ -61,6 +61,7 @@ class ShoulderParameters:
     contact_quadrature: int
     soft_tissue_formulation: str
     soft_tissue_bulk_ratio: float
+    soft_tissue_pressure: str
     quadrature_degree: int
     spring_length: float
     scapula_spring_stiffness: float

@@ -145,6 +145,12 @@ class AngleStepper:
         self.increment = min(params.angle_step, params.max_angle_step)
         self.max_step = params.max_angle_step
         self.max_cut = int(params.max_cutbacks)
+        #: kappa/mu of nearly incompressible soft tissue (the seating's continuation), or None.
+        self.bulk_ratio = (
+            params.soft_tissue_bulk_ratio
+            if params.soft_tissue_formulation == "incompressible"
+            else None
+        )
         self.log = StepLog()
         self.theta = 0.0
         self.tangent: PETSc.Vec | None = None
@@ -155,7 +161,7 @@ class AngleStepper:
 
     def start(self) -> None:
         """Seat the joint unloaded (:func:`~.seating.seat`), then control the plate by angle."""
-        seat(self.system, self.contact, f"{self.label} 0 deg")
+        seat(self.system, self.contact, f"{self.label} 0 deg", self.bulk_ratio)
         self.contact.commit()
         control = self.system.set_control(
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE

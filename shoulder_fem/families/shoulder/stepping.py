@@ -472,6 +472,8 @@ class AngleOutputs:
             lo, hi = job.check.j_range()
             self.recorder.add_series_point("soft_tissue_min_j", x, lo, "deg", "1")
             self.recorder.add_series_point("soft_tissue_max_j", x, hi, "deg", "1")
+            top = job.check.i1bar_max()
+            self.recorder.add_series_point("soft_tissue_max_i1bar", x, top, "deg", "1")
         if job.on_output is not None:
             job.on_output(target)
         if job.stress is not None:

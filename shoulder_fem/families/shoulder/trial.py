@@ -74,6 +74,11 @@ class SoftTissueCheck:
         hi = self.comm.allreduce(float(J.max()) if len(J) else -np.inf, op=MPI.MAX)
         return lo, hi
 
+    def i1bar_max(self) -> float:
+        """The largest I1bar over all ranks (3 undeformed; the trial bound is TRIAL_I1BAR_MAX)."""
+        _, i1bar = self.values()
+        return self.comm.allreduce(float(i1bar.max()) if len(i1bar) else 3.0, op=MPI.MAX)
+
     def admissible(self) -> bool:
         """Whether the current state may be a Newton trial state (same on every rank)."""
         J, i1bar = self.values()

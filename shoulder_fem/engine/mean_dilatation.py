@@ -120,7 +120,7 @@ class MeanDilatation:
         self.update()
 
     def _assemble(self, form) -> np.ndarray:
-        """The owned values of a P0 vector form (collective)."""
+        """The owned values of a vector form on the pressure space (collective)."""
         vec = self._vec
         with vec.localForm() as loc:
             loc.set(0.0)
@@ -129,12 +129,12 @@ class MeanDilatation:
         return vec.array_r[: self.n_owned].copy()
 
     def residual(self, w: ufl.Argument, ids: tuple[int, ...] | None = None) -> ufl.Form:
-        """The volumetric virtual power ∫ p̄ J F⁻ᵀ : ∇w dx (N) over the cells of ``ids`` (all)."""
+        """The volumetric virtual power ∫ p J F⁻ᵀ : ∇w dx (N) over the cells of ``ids`` (all)."""
         dx = self.dx if ids is None else self._dx_all(tuple(int(i) for i in ids))
         return self.pressure * self._J * ufl.inner(self._Finv_T, ufl.grad(w)) * dx
 
     def update(self) -> None:
-        """θ, p̄ and U''/|K| of every cell at the current ``u`` (collective)."""
+        """θ, p and U''/|a| of every pressure DOF at the current ``u`` (collective)."""
         mean = self._assemble(self._mean)
         soft = self.volume > 0
         theta = np.ones(self.n_owned)

@@ -914,7 +914,7 @@ def test_the_cuff_slides_on_the_scapula(study):
     0.8 N at 60 deg); without the scapula's pair (``humeral-head``) the infraspinatus's
     free-surface vertices were 5.2 mm and the supraspinatus's 1.2 mm inside the scapula at 60
     deg (this test's check of the output field), with it none is inside, and the pair's own
-    points overlap by what its penalty law allows (1.1 mm at 60 deg, 0.54 MPa at 0.5 MPa/mm).
+    points overlap by what its penalty law allows (1.1 mm at 60 deg, 0.53 MPa at 0.5 MPa/mm).
     Per muscle, the recorded forces add up to the pair's (as vectors: their magnitudes bound
     it; equal where one muscle alone presses)."""
     scene = load_scene("shoulder-internal-rotation")

@@ -185,7 +185,7 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
     ``humeral-head`` the muscles' deep faces slide on the humerus's free surface around the
     head (pair ``muscle_humerus``); with ``bones`` also on the scapula's free surface near them
     (``muscle_scapula``), with the same penalty, depth and smoothing. Each muscle's faces
-    have their own tag (the forces per muscle: :meth:`Contact.tag_resultants`); a muscle that
+    have their own tag (the forces per muscle: ``Contact.resultants(by_tag=True)``); a muscle that
     has no face over a bone on this mesh is left out of that pair.
     """
     pairs = [

@@ -97,10 +97,33 @@ BONES = (HUMERUS, SCAPULA)
 HUMERUS_HEAD_LAYER = Marker("humerus_head_layer", 8, 3)
 #: The facets of that master (a tag value given by :func:`head_surface_tags`, not by gmsh).
 HUMERUS_HEAD_SURFACE = Marker("humerus_head_surface", 143, 2)
-#: The deep faces of the muscles over the head (slave of the muscle-bone contact), given by
+#: The deep faces of the muscles over the head (slave of the muscle-humerus contact), one tag
+#: per muscle (so that the contact's force is reported per muscle), given by
 #: :func:`head_surface_tags`: free muscle facets within the head region whose outward normal
-#: is within acos(_DEEP_COSINE) of the direction to the articular centre.
-MUSCLE_DEEP_SURFACE = Marker("muscle_deep_surface", 144, 2)
+#: is within acos(_DEEP_COSINE) of the direction to the articular centre. (One tag for the
+#: three muscles until issue 20's muscle-scapula contact: the same facets.)
+MUSCLE_HEAD_FACES = tuple(Marker(f"{m}_head_face", 144 + k, 2) for k, m in enumerate(MUSCLES))
+#: The deep faces of the muscles over the scapula (slave of the muscle-scapula contact), one
+#: tag per muscle, given by :func:`scapula_surface_tags`: free muscle facets, not over the
+#: head, not touching the muscle's origin footprint (its rim: a facet with a node on the bonded
+#: footprint is at zero gap from the bone by construction), whose midpoint lies within the
+#: scapular reach of the scapula's contact surface and whose outward normal is within
+#: acos(_DEEP_COSINE) of the direction to the closest point of that surface.
+MUSCLE_SCAPULA_FACES = tuple(Marker(f"{m}_scapula_face", 147 + k, 2) for k, m in enumerate(MUSCLES))
+#: The master of the muscle-scapula contact: the ``scapula_surface`` facets (the scapula's free
+#: surface: without the origin footprints, the glenoid's bonded cartilage and the spring
+#: patches, which have tags of their own) whose centroid lies within the scapular reach of the
+#: muscles' free surfaces (a tag value given by :func:`scapula_surface_tags`).
+SCAPULA_CONTACT_SURFACE = Marker("scapula_contact_surface", 150, 2)
+#: ``rigid-bone`` with the muscle-scapula contact: the scapula cells with a node on that master
+#: (reach x _LAYER_MARGIN, so that it holds every master facet), carried by the rigid scapula,
+#: like :data:`HUMERUS_HEAD_LAYER` (not in :data:`VOLUMES`).
+SCAPULA_LAYER = Marker("scapula_layer", 9, 3)
+#: Reach of the muscle-scapula contact, in muscle thicknesses: the deep faces between the
+#: origin and the glenoid neck lie 1.7-14.1 mm from the blade and the neck at coarse (8 mm
+#: muscles; measured, 2026-11-27).
+SCAPULA_REACH_FACTOR = 2.0
+_LAYER_MARGIN = 1.25
 _DEEP_COSINE = 0.3
 #: Reach of the head region, in articular radii: the head, the tuberosities and the rotator
 #: cuff over them (the muscles are 8 mm thick on a 24 mm head).
@@ -1202,6 +1225,7 @@ def model_to_dolfinx(
     rank: int = 0,
     detach: tuple = (),
     head_layer: bool = False,
+    scapula_layer: bool = False,
 ):
     """Turn the meshed gmsh model (on ``rank``) into dolfinx meshes with tags, scaled to metres.
 
@@ -1218,6 +1242,10 @@ def model_to_dolfinx(
             bone so that it can be displaced.
         head_layer: ``rigid-bone`` only: keep the humerus cells under the head's free surface
             (:data:`HUMERUS_HEAD_LAYER`), for muscle-bone contact on a rigid humerus.
+        scapula_layer: ``rigid-bone`` only: keep the scapula cells under its free surface near
+            the muscles (:data:`SCAPULA_LAYER`), for muscle-scapula contact on a rigid scapula;
+            the ``detach`` pairs are then cut open as in ``deformable`` (the driven
+            subscapularis origin is not tied to the layer).
 
     Returns:
         (mesh, cell_tags, facet_tags, bone_surface, bone_surface_tags); the last two are None for
@@ -1265,13 +1293,20 @@ def model_to_dolfinx(
     soft_facets = (
         {m.id: info["surfaces"][m.name] for m in SOFT_SURFACES} if comm.rank == rank else None
     )
-    layer = None
+    layers = []
     if head_layer and comm.rank == rank:
         # the humerus cells on the head's free surface (see HUMERUS_HEAD_LAYER) and that surface
         soft_facets[MARKERS["humerus_surface"].id] = info["surfaces"]["humerus_surface"]
         reach = head_region_radius(info["geometry"]) * _MM
-        layer = (HUMERUS_HEAD_LAYER.id, _head_layer_elements(info, reach))
-    mesh, ct, ft = _tagged_mesh(comm, rank, 3, soft_cells, soft_facets, extra_cells=layer)
+        layers.append((HUMERUS_HEAD_LAYER.id, _head_layer_elements(info, reach)))
+    split = ()
+    if scapula_layer:
+        split = tuple((MARKERS[a].id, MARKERS[b].id) for a, b in detach)
+        if comm.rank == rank:  # the scapula cells under the muscles (see SCAPULA_LAYER)
+            soft_facets[MARKERS["scapula_surface"].id] = info["surfaces"]["scapula_surface"]
+            reach = _LAYER_MARGIN * scapula_reach(info["geometry"]) * _MM
+            layers.append((SCAPULA_LAYER.id, _scapula_layer_elements(info, reach)))
+    mesh, ct, ft = _tagged_mesh(comm, rank, 3, soft_cells, soft_facets, split, layers)
     bone_cells = (
         {m.id: info["surfaces"][m.name] for m in RIGID_BONE_SURFACES} if comm.rank == rank else None
     )
@@ -1286,7 +1321,7 @@ def _tagged_mesh(
     cells: dict | None,
     facets: dict | None,
     split: tuple = (),
-    extra_cells: tuple | None = None,
+    extra_cells: list | None = None,
 ):
     """A dolfinx mesh (m) of the gmsh elements on the given entities, with cell and facet tags.
 
@@ -1298,8 +1333,8 @@ def _tagged_mesh(
         facets: on ``rank``: tag value -> gmsh entities of dimension ``tdim - 1`` (or None).
         split: ``(facet tag, cell tag)`` pairs: the nodes of those facets are duplicated for
             the cells of that tag (the interface is cut open; the facets keep the copy).
-        extra_cells: on ``rank``: ``(tag value, gmsh node tags (n, tdim + 1))``, cells given
-            element by element (or None).
+        extra_cells: on ``rank``: ``[(tag value, gmsh node tags (n, tdim + 1)), ...]``, cells
+            given element by element (or None).
     """
     import dolfinx
     import gmsh
@@ -1329,8 +1364,7 @@ def _tagged_mesh(
             return np.vstack(topo), np.concatenate(vals)
 
         cell_topo, cell_vals = collect(cells, tdim, gmsh_cell, nper)
-        if extra_cells is not None:
-            value, elements = extra_cells
+        for value, elements in extra_cells or ():
             cell_topo = np.vstack([cell_topo, lookup[np.asarray(elements, dtype=np.int64)]])
             cell_vals = np.concatenate([cell_vals, np.full(len(elements), value, np.int32)])
         used, cell_topo = np.unique(cell_topo, return_inverse=True)
@@ -1361,6 +1395,13 @@ def _tagged_mesh(
                     moved = remap[facet_topo[j]]
                     if tuple(sorted(moved)) in faces:
                         facet_topo[j] = moved
+            if split:  # the originals that no cell keeps (a partial layer: rigid-bone) go
+                used = np.unique(cell_topo)
+                compact = np.full(len(x), -1, dtype=np.int64)
+                compact[used] = np.arange(len(used))
+                x, cell_topo, facet_topo = x[used], compact[cell_topo], compact[facet_topo]
+                keep = np.all(facet_topo >= 0, axis=1)
+                facet_topo, facet_vals = facet_topo[keep], facet_vals[keep]
         else:
             facet_topo = np.empty((0, fper), dtype=np.int64)
             facet_vals = np.empty(0, dtype=np.int32)
@@ -1428,6 +1469,134 @@ def _head_layer_elements(info: dict, radius_mm: float) -> np.ndarray:
     return np.vstack(cells) if cells else np.zeros((0, 4), dtype=np.int64)
 
 
+def scapula_reach(g: ShoulderGeometry) -> float:
+    """Reach (m) of the muscle-scapula contact: :data:`SCAPULA_REACH_FACTOR` muscle thicknesses.
+
+    The one value behind the rigid-bone layer (:func:`_scapula_layer_elements`, with a margin)
+    and the facet tags (:func:`scapula_surface_tags`).
+    """
+    return SCAPULA_REACH_FACTOR * g.muscle_thickness
+
+
+def _closest_on_triangles(p, a, b, c) -> np.ndarray:
+    """Closest point of each triangle (a, b, c) to p, row by row ((n, 3) each; Ericson 2005)."""
+
+    def dot(u, v):
+        return np.einsum("ij,ij->i", u, v)
+
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    d1, d2, d3, d4, d5, d6 = (
+        dot(ab, ap),
+        dot(ac, ap),
+        dot(ab, bp),
+        dot(ac, bp),
+        dot(ab, cp),
+        dot(ac, cp),
+    )
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = va + vb + vc
+        q = a + ab * (vb / den)[:, None] + ac * (vc / den)[:, None]  # the interior
+        on_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        cases = [
+            ((va <= 0) & (d4 >= d3) & (d5 >= d6), b + (c - b) * on_bc[:, None]),  # edge bc
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + ac * (d2 / (d2 - d6))[:, None]),  # edge ac
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + ab * (d1 / (d1 - d3))[:, None]),  # edge ab
+            ((d6 >= 0) & (d5 <= d6), c),
+            ((d3 >= 0) & (d4 <= d3), b),
+            ((d1 <= 0) & (d2 <= 0), a),
+        ]
+    for where, at in cases:  # the vertices last: they win where their regions meet the edges'
+        q = np.where(where[:, None], at, q)
+    return q
+
+
+def _closest_within(points: np.ndarray, tris: np.ndarray, reach: float):
+    """Distance (inf beyond ``reach``) and closest point of each point on the triangles.
+
+    ``points`` (n, 3), ``tris`` (m, 3, 3): only the triangles whose centroid lies within reach
+    plus the largest centroid-vertex distance are tested exactly.
+    """
+    from scipy.spatial import cKDTree
+
+    dist, q = np.full(len(points), np.inf), np.zeros((len(points), 3))
+    if len(points) == 0 or len(tris) == 0:
+        return dist, q
+    cen = tris.mean(axis=1)
+    rad = float(np.linalg.norm(tris - cen[:, None], axis=2).max())
+    near = cKDTree(cen).query_ball_point(points, reach + rad)
+    counts = np.array([len(k) for k in near])
+    if counts.sum() == 0:
+        return dist, q
+    pi = np.repeat(np.arange(len(points)), counts)
+    ti = np.concatenate([np.asarray(k, dtype=np.int64) for k in near if k])
+    qq = _closest_on_triangles(points[pi], *(tris[ti, i] for i in range(3)))
+    d2 = np.einsum("ij,ij->i", qq - points[pi], qq - points[pi])
+    order = np.lexsort((d2, pi))
+    first = order[np.unique(pi[order], return_index=True)[1]]
+    dist[pi[first]], q[pi[first]] = np.sqrt(d2[first]), qq[first]
+    dist[dist > reach] = np.inf
+    return dist, q
+
+
+def _gmsh_triangles(info: dict, names: tuple[str, ...]) -> np.ndarray:
+    """Node tags (gmsh, (n, 3)) of the triangles of the named surfaces (gmsh rank only)."""
+    import gmsh
+
+    out = [np.zeros((0, 3), dtype=np.int64)]
+    for name in names:
+        for ent in info["surfaces"][name]:
+            types, _, nodes = gmsh.model.mesh.getElements(2, ent)
+            pairs = zip(types, nodes, strict=True)
+            out += [np.asarray(n, np.int64).reshape(-1, 3) for t, n in pairs if t == 2]
+    return np.vstack(out)
+
+
+def _scapula_layer_elements(info: dict, reach_mm: float) -> np.ndarray:
+    """Node tags (gmsh, (n, 4)) of the scapula tetrahedra under its free surface near the muscles.
+
+    The surface triangles are those of ``scapula_surface`` whose centroid lies within
+    ``reach_mm`` of the muscles' free surfaces; the cells, every scapula tetrahedron with a node
+    on them (gmsh rank only).
+    """
+    import gmsh
+
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    xyz = np.zeros((int(node_tags.max()) + 1, 3))
+    xyz[node_tags.astype(np.int64)] = coords.reshape(-1, 3)
+    bone = _gmsh_triangles(info, ("scapula_surface",))
+    muscle = _gmsh_triangles(info, tuple(f"{m}_surface" for m in MUSCLES))
+    dist, _ = _closest_within(xyz[bone].mean(axis=1), xyz[muscle], reach_mm)
+    on = np.unique(bone[np.isfinite(dist)])
+    cells = [np.zeros((0, 4), dtype=np.int64)]
+    for ent in info["volumes"][SCAPULA.name]:
+        types, _, nodes = gmsh.model.mesh.getElements(3, ent)
+        for t, n in zip(types, nodes, strict=True):
+            if t == 4:
+                tet = np.asarray(n, dtype=np.int64).reshape(-1, 4)
+                cells.append(tet[np.isin(tet, on).any(axis=1)])
+    return np.vstack(cells)
+
+
+def _facet_triangles(mesh, facets: np.ndarray) -> np.ndarray:
+    """Vertex coordinates (m, (n, 3, 3)) of straight facets, in their vertex order."""
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim - 1, 0)
+    mesh.topology.create_connectivity(tdim, 0)
+    n_vert = mesh.topology.index_map(0).size_local + mesh.topology.index_map(0).num_ghosts
+    v_to_x = np.zeros(n_vert, dtype=np.int64)
+    v_to_x[mesh.topology.connectivity(tdim, 0).array] = mesh.geometry.dofmap.array
+    f2v = mesh.topology.connectivity(tdim - 1, 0)
+    if len(facets) == 0:
+        return np.zeros((0, 3, 3))
+    return mesh.geometry.x[v_to_x[np.vstack([f2v.links(f) for f in facets])]]
+
+
+def _gathered(comm, a: np.ndarray) -> np.ndarray:
+    """The rows of ``a`` of every rank, on every rank (collective)."""
+    return np.concatenate(comm.allgather(a))
+
+
 def _outward_normals(mesh, facets: np.ndarray) -> np.ndarray:
     """Unit outward normals of boundary facets (straight simplices, reference positions)."""
     tdim = mesh.topology.dim
@@ -1455,7 +1624,8 @@ def head_surface_tags(mesh, facet_tags, radius: float):
     The ``humerus_surface`` facets whose centroid lies within ``radius`` (m) of the articular
     centre (the origin) take the value of :data:`HUMERUS_HEAD_SURFACE`; the free muscle facets
     within that reach whose outward normal points towards the centre (the muscles' deep
-    faces, which wrap the head) take :data:`MUSCLE_DEEP_SURFACE`; the rest is kept. The
+    faces, which wrap the head) take their muscle's :data:`MUSCLE_HEAD_FACES`; the rest is
+    kept. The
     superficial faces of a muscle would otherwise see the head through the muscle.
     """
     import dolfinx
@@ -1468,13 +1638,54 @@ def head_surface_tags(mesh, facet_tags, radius: float):
     if len(cand):
         x = dolfinx.mesh.compute_midpoints(mesh, fdim, idx[cand].astype(np.int32))
         vals[cand[np.linalg.norm(x, axis=1) < radius]] = HUMERUS_HEAD_SURFACE.id
-    free = np.flatnonzero(np.isin(vals, [MARKERS[f"{m}_surface"].id for m in MUSCLES]))
-    if len(free):
-        x = dolfinx.mesh.compute_midpoints(mesh, fdim, idx[free].astype(np.int32))
-        r = np.linalg.norm(x, axis=1)
-        n = _outward_normals(mesh, idx[free])
-        deep = (r < radius) & (np.einsum("fi,fi->f", n, -x) > _DEEP_COSINE * r)
-        vals[free[deep]] = MUSCLE_DEEP_SURFACE.id
+    for muscle, face in zip(MUSCLES, MUSCLE_HEAD_FACES, strict=True):
+        free = np.flatnonzero(vals == MARKERS[f"{muscle}_surface"].id)
+        if len(free):
+            x = dolfinx.mesh.compute_midpoints(mesh, fdim, idx[free].astype(np.int32))
+            r = np.linalg.norm(x, axis=1)
+            n = _outward_normals(mesh, idx[free])
+            deep = (r < radius) & (np.einsum("fi,fi->f", n, -x) > _DEEP_COSINE * r)
+            vals[free[deep]] = face.id
+    tags = dolfinx.mesh.meshtags(mesh, fdim, idx, vals)
+    tags.name = facet_tags.name
+    return tags
+
+
+def scapula_surface_tags(mesh, facet_tags, reach: float):
+    """Facet tags with the surfaces of muscle-scapula contact re-tagged (collective).
+
+    The ``scapula_surface`` facets whose centroid lies within ``reach`` (m) of the muscles'
+    free surfaces take :data:`SCAPULA_CONTACT_SURFACE`; then each muscle's free facets that
+    are not over the head (:func:`head_surface_tags` first, if at all), have no node on the
+    muscle's origin footprint, lie within ``reach`` of that surface and face it (outward
+    normal within acos(_DEEP_COSINE) of the direction to its closest point) take the
+    muscle's :data:`MUSCLE_SCAPULA_FACES`. The rest is kept.
+    """
+    import dolfinx
+    from scipy.spatial import cKDTree
+
+    comm, fdim = mesh.comm, mesh.topology.dim - 1
+    idx, vals = facet_tags.indices.copy(), facet_tags.values.copy()
+    free_ids = [MARKERS[f"{m}_surface"].id for m in MUSCLES] + [f.id for f in MUSCLE_HEAD_FACES]
+    muscle = _gathered(comm, _facet_triangles(mesh, idx[np.isin(vals, free_ids)]))
+    bone = np.flatnonzero(vals == MARKERS["scapula_surface"].id)
+    dist, _ = _closest_within(_facet_triangles(mesh, idx[bone]).mean(axis=1), muscle, reach)
+    vals[bone[np.isfinite(dist)]] = SCAPULA_CONTACT_SURFACE.id
+    master = _gathered(comm, _facet_triangles(mesh, idx[vals == SCAPULA_CONTACT_SURFACE.id]))
+    for name, face in zip(MUSCLES, MUSCLE_SCAPULA_FACES, strict=True):
+        foot = _gathered(comm, _facet_triangles(mesh, idx[vals == MARKERS[f"{name}_origin"].id]))
+        free = np.flatnonzero(vals == MARKERS[f"{name}_surface"].id)
+        tri = _facet_triangles(mesh, idx[free])
+        rim = np.zeros(len(free), dtype=bool)
+        if len(foot) and len(free):
+            d, _ = cKDTree(foot.reshape(-1, 3)).query(tri.reshape(-1, 3))
+            rim = (d.reshape(-1, 3) < 1e-9).any(axis=1)
+        mid = tri.mean(axis=1)
+        dist, q = _closest_within(mid, master, reach)
+        n = _outward_normals(mesh, idx[free]) if len(free) else np.zeros((0, 3))
+        ok = np.isfinite(dist) & ~rim
+        facing = np.einsum("fi,fi->f", n[ok], q[ok] - mid[ok]) > _DEEP_COSINE * dist[ok]
+        vals[free[np.flatnonzero(ok)[facing]]] = face.id
     tags = dolfinx.mesh.meshtags(mesh, fdim, idx, vals)
     tags.name = facet_tags.name
     return tags
@@ -1488,6 +1699,7 @@ def build_shoulder_mesh(
     rank: int = 0,
     detach: tuple = (),
     head_layer: bool = False,
+    scapula_layer: bool = False,
 ) -> ShoulderMesh | dict[str, ShoulderMesh]:
     """Build the gmsh model on ``rank`` and return the dolfinx mesh with tags (collective).
 
@@ -1507,6 +1719,8 @@ def build_shoulder_mesh(
             (:func:`model_to_dolfinx`).
         head_layer: ``rigid-bone``: keep the humerus cells under the head's free surface
             (:func:`model_to_dolfinx`).
+        scapula_layer: ``rigid-bone``: keep the scapula cells under its free surface near the
+            muscles (:func:`model_to_dolfinx`).
     """
     import gmsh
 
@@ -1543,7 +1757,10 @@ def build_shoulder_mesh(
             gmsh.finalize()
         raise ValueError(error)
     try:
-        built = {v: model_to_dolfinx(comm, info, v, rank, detach, head_layer) for v in variants}
+        built = {
+            v: model_to_dolfinx(comm, info, v, rank, detach, head_layer, scapula_layer)
+            for v in variants
+        }
         summary = None
         if comm.rank == rank:
             summary = {

@@ -668,6 +668,37 @@ def test_master_points_are_where_the_slave_presses_in_the_master_reference():
         tb.contact.master_points("nope")
 
 
+def test_resultants_per_slave_tag_add_up_to_the_pair():
+    """The upper block (offset 0.25 m in x) moved rigidly 1 mm into the lower one, its bottom
+    (the slave) split in two tags at x = 0.6 m: each tag's resultants are those of its own
+    points; the forces and moments add up to the pair's, the areas to the 0.75 m^2 overlap,
+    and the deepest penetration is the deeper tag's (the shoulder's forces per muscle)."""
+    delta, other = 1e-3, 900
+    tb = TwoBlocks(offset=(0.25, 0.0))
+    ft = tb.ft
+    mid = dolfinx.mesh.compute_midpoints(tb.mesh, 2, ft.indices)
+    values = ft.values.copy()
+    values[(values == cb.UPPER_BOTTOM.id) & (mid[:, 0] > 0.6)] = other
+    split = dolfinx.mesh.meshtags(tb.mesh, 2, ft.indices, values)
+    slave = (cb.UPPER_BOTTOM.id, other)
+    pair = ContactPair("split", slave, MeshSurface((cb.LOWER_TOP.id,)), tb.eps)
+    contact = Contact(tb.V, tb.u, split, [pair])
+    upper = dolfinx.fem.locate_dofs_topological(tb.V, 3, tb.ct.find(cb.UPPER.id))
+    tb.u.x.array.reshape(-1, 3)[upper, 2] = -delta
+    whole = contact.resultants((0.5, 0.5, 0.0))["split"]
+    parts = contact.resultants((0.5, 0.5, 0.0), by_tag=True)["split"]
+    assert set(parts) == set(slave)
+    assert all(parts[t]["normal_force"] > 0 for t in slave)  # both parts press
+    force = parts[slave[0]]["force"] + parts[slave[1]]["force"]
+    moment = parts[slave[0]]["moment"] + parts[slave[1]]["moment"]
+    assert np.allclose(force, whole["force"], rtol=1e-12, atol=1e-9 * abs(whole["force"][2]))
+    assert np.allclose(moment, whole["moment"], rtol=1e-12, atol=1e-9 * abs(whole["force"][2]))
+    assert whole["force"][2] == pytest.approx(tb.eps * delta * 0.75, rel=1e-9)
+    assert parts[slave[0]]["area"] + parts[slave[1]]["area"] == pytest.approx(0.75, rel=1e-12)
+    deepest = max(parts[t]["max_penetration"] for t in slave)
+    assert deepest == pytest.approx(whole["max_penetration"], rel=1e-12)
+
+
 def test_smoothed_penalty_law_by_hand():
     """The C1 penalty law (ε = 2, s = 1): zero below -s, ε (d + s)²/(4 s) within, ε d above;
     values and slopes by hand, and the slope is the derivative (central differences)."""

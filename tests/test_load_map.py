@@ -66,8 +66,10 @@ def test_part2_on_a_finer_scapula_carries_part1s_loads(comm_tmp):
     scene = load_scene("shoulder-internal-rotation").with_overrides([*short, "part2_level=medium"])
     res = run(scene, "decoupled", level="coarse", out=comm_tmp / "p2medium")
     # a coarse 12.5 mm chord on the glenoid's bone side (R about 28 mm) sags c^2 / 8R = 0.7 mm
-    # (measured 0.65 mm)
-    assert res.probes["load_map_max_move"] < 1.5e-3
+    # (measured 0.65 mm); the muscle-scapula contact's master is loaded too (muscle_contact =
+    # bones): its nodes reach the glenoid plate's rounded rim, where a coarse chord sags more
+    # (measured 1.60 mm, at (-27.7, -5.0, -17.8) mm; 7 of its 555 nodes move over 1 mm)
+    assert res.probes["load_map_max_move"] < 2.0e-3
     # the moment moved by the forces times their moves: measured 1.0e-4
     assert max(res.series["load_map_moment_error"]["y"]) < 1e-3
     # part 1 balanced its loads with the springs: the mapped loads still do (total force kept

@@ -167,7 +167,10 @@ def make_run(
             "contact_force": series(angles, scale * (300.0 + angles), "N"),
             **{f"{m}_force": series(angles, scale * f, "N") for m, f in muscles.items()},
             **(
-                {"muscle_bone_contact_force": series(angles, scale * (1.0 + angles), "N")}
+                {
+                    "muscle_bone_contact_force": series(angles, scale * (1.0 + angles), "N"),
+                    "infraspinatus_scapula_contact_force": series(angles, scale * angles, "N"),
+                }
                 if muscle_contact
                 else {}
             ),
@@ -310,7 +313,11 @@ def test_scaled_results_and_resources(tmp_path):
     d = make_run(tmp_path / "decoupled", "decoupled", scale=1.02, muscle_contact=True)
     rep = write_report(c, d, tmp_path / "report", "coarse")
     assert rep["muscle_bone_contact_force_rel_error"] == pytest.approx(0.02)
-    assert "cuff-on-head" in comparison_table(rep)
+    assert "muscle-bone contact force" in comparison_table(rep)
+    last = rep["per_angle"][-1]["infraspinatus_scapula_contact_force_n"]
+    assert last["decoupled"] == pytest.approx(1.02 * last["coupled"])
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "## The rotator cuff on the bones" in md and "infraspinatus on scapula cpl N" in md
     assert rep["von_mises_slope"] == pytest.approx(1.02, rel=1e-12)
     assert rep["von_mises_correlation"] == pytest.approx(1.0)
     vm_max = 2 * von_mises(kuhn_mesh(4, 0.01, (-0.02, -0.02, -0.02))[0]).max()

@@ -321,10 +321,11 @@ class Contact:
         self._last_u = None
 
     # -- outputs -----------------------------------------------------------------------------
-    def resultants(self, point: Sequence[float] = (0.0, 0.0, 0.0)) -> dict[str, dict]:
-        """Resultants of every pair on its slave (collective; :func:`.output.resultants`)."""
+    def resultants(self, point: Sequence[float] = (0.0, 0.0, 0.0), by_tag: bool = False) -> dict:
+        """Resultants of every pair (per slave tag if ``by_tag``; :func:`.output.resultants`)."""
         self._ensure()
-        return output.resultants(self.pairs, self._state, self.comm, point)
+        slaves = self._slaves if by_tag else None
+        return output.resultants(self.pairs, self._state, self.comm, point, slaves)
 
     def master_points(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Where pair ``name`` presses on its mesh master, in the master's reference geometry.

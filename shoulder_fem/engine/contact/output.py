@@ -25,8 +25,16 @@ RESULTANT_UNITS = {
 }
 
 
-def pair_resultants(st: dict, comm: MPI.Comm, point: np.ndarray) -> dict:
-    """Resultants of one pair's state ``st`` on its slave (collective; :func:`resultants`)."""
+def pair_resultants(
+    st: dict, comm: MPI.Comm, point: np.ndarray, select: np.ndarray | None = None
+) -> dict:
+    """Resultants of one pair's state ``st`` on its slave (collective; :func:`resultants`).
+
+    ``select``: a mask of the state's points to sum over (None: all of them).
+    """
+    if select is not None:
+        keys = ("active", "W", "p", "n", "t", "xq", "g")
+        st = {k: st[k][select] for k in keys}
     a = st["active"]
     W = st["W"][a]
     f = (st["p"][a, None] * st["n"][a] + st["t"][a]) * W[:, None]
@@ -61,18 +69,38 @@ def resultants(
     states: Sequence[dict],
     comm: MPI.Comm,
     point: Sequence[float] = (0.0, 0.0, 0.0),
+    slaves: Sequence[Facets] | None = None,
 ) -> dict[str, dict]:
     """Resultants of every pair on its slave (collective).
 
     Returns:
         Per pair: force on the slave (N), moment about ``point`` (N m), normal force (N),
         area in contact (m², reference), maximum pressure (Pa), maximum shear (Pa), centre
-        of pressure (m; None without contact), largest penetration (m), active points.
+        of pressure (m; None without contact), largest penetration (m), active points. With
+        the pairs' ``slaves`` given: per pair, those of each tag value of its slave
+        (:func:`tag_resultants`).
     """
     point = np.asarray(point, dtype=float)
+    if slaves is not None:
+        parts = zip(pairs, states, slaves, strict=True)
+        return {p.name: tag_resultants(p, st, sl, comm, point) for p, st, sl in parts}
     return {
         pair.name: pair_resultants(st, comm, point) for pair, st in zip(pairs, states, strict=True)
     }
+
+
+def tag_resultants(
+    pair: ContactPair, st: dict, slave: Facets, comm: MPI.Comm, point: Sequence[float]
+) -> dict[int, dict]:
+    """Resultants of one pair on each tag value of its slave (collective).
+
+    The slave's points summed by the tag of the facet they lie on (:func:`pair_resultants`):
+    e.g. the muscles of one slave surface, each its own tag. Their forces add up to the
+    pair's.
+    """
+    point = np.asarray(point, dtype=float)
+    of_point = slave.tags[st["facet"]] if len(st["facet"]) else np.zeros(0, dtype=np.int64)
+    return {t: pair_resultants(st, comm, point, of_point == t) for t in pair.slave}
 
 
 def master_points(st: dict, m: MasterMesh) -> tuple[np.ndarray, np.ndarray]:

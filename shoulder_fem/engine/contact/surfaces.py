@@ -31,6 +31,7 @@ class Facets:
     nodes: np.ndarray  # (nf, nn) local node (block) indices, canonical order, outward oriented
     X: np.ndarray  # (nf, nn, 3) reference coordinates of those nodes
     p1: np.ndarray  # (nf, 3) local CG1 dofs of the facet vertices (pressure field)
+    tags: np.ndarray  # (nf,) the facet tag value of each facet (resultants per tag)
 
 
 def _tagged_facets(mesh, facet_tags, tags: Sequence[int], what: str) -> np.ndarray:
@@ -51,17 +52,17 @@ def _oriented_nodes(V, Q, facets: np.ndarray, X_all: np.ndarray, degree: int):
     """Canonical, outward-oriented nodes and CG1 vertex dofs of the facets of owned cells.
 
     Returns:
-        (nodes, p1, interior): lists of node and vertex-dof lists, and the number of facets
-        that are not on the boundary.
+        (nodes, p1, kept, interior): lists of node and vertex-dof lists, the positions in
+        ``facets`` of the facets kept, and the number of facets that are not on the boundary.
     """
     mesh = V.mesh
     tdim = mesh.topology.dim
     f2c = mesh.topology.connectivity(tdim - 1, tdim)
     c2f = mesh.topology.connectivity(tdim, tdim - 1)
     n_owned = mesh.topology.index_map(tdim).size_local
-    nodes, p1 = [], []
+    nodes, p1, kept = [], [], []
     interior = 0
-    for f in facets:
+    for k, f in enumerate(facets):
         cells = f2c.links(f)
         if len(cells) != 1:
             interior += 1
@@ -90,7 +91,8 @@ def _oriented_nodes(V, Q, facets: np.ndarray, X_all: np.ndarray, degree: int):
             pv = [pv[0], pv[2], pv[1]]
         nodes.append(order)
         p1.append(pv)
-    return nodes, p1, interior
+        kept.append(k)
+    return nodes, p1, kept, interior
 
 
 def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
@@ -121,7 +123,7 @@ def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
     facets = _tagged_facets(mesh, facet_tags, tags, what)
     X_all = V.tabulate_dof_coordinates()
     nn = 3 if degree == 1 else 6
-    nodes, p1, interior = _oriented_nodes(V, Q, facets, X_all, degree)
+    nodes, p1, kept, interior = _oriented_nodes(V, Q, facets, X_all, degree)
     interior = mesh.comm.allreduce(interior, op=MPI.SUM)
     if interior:
         raise ContactError(
@@ -137,7 +139,9 @@ def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
     n_local_facets = mesh.comm.allreduce(len(nodes), op=MPI.SUM)
     if n_local_facets == 0:
         raise ContactError(f"{what}: the facet tags {list(tags)} select no boundary facet")
-    return Facets(nodes=nodes, X=X, p1=p1)
+    chosen = facets[np.asarray(kept, dtype=np.int64)]
+    tags = facet_tags.values[np.searchsorted(facet_tags.indices, chosen)].astype(np.int64)
+    return Facets(nodes=nodes, X=X, p1=p1, tags=tags)
 
 
 @dataclass

@@ -44,7 +44,8 @@ from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["HUMERUS_TIES", "SCAPULA_LOAD_SURFACES", "Transfer", "run_decoupled", "run_part1"]
 
-#: The scapula's surfaces loaded by part 1's soft tissues: their forces go to part 2.
+#: The scapula's surfaces loaded by part 1's soft tissues: their forces go to part 2 (with the
+#: master of the muscle-scapula contact, :data:`meshes.shoulder.SCAPULA_CONTACT_SURFACE`).
 SCAPULA_LOAD_SURFACES = ("glenoid_cartilage_bone", "supraspinatus_origin", "infraspinatus_origin")
 #: The soft tissues' surfaces on the humerus, carried by the rigid humerus in part 1.
 HUMERUS_TIES = (
@@ -75,7 +76,8 @@ def _to_level(model: ShoulderModel, run: RunContext, transfer: Transfer, level: 
     """Mesh the scapula at ``level`` and carry part 1's loads onto it (:mod:`.load_map`)."""
     del model.meshes["scapula"]
     sm = model.meshes["scapula"] = scapula_at(model, level)
-    tags = [S.MARKERS[name].id for name in SCAPULA_LOAD_SURFACES]
+    names = SCAPULA_LOAD_SURFACES + (("scapula_surface",) if model.params.scapula_contact else ())
+    tags = [S.MARKERS[name].id for name in names]
     mapping = load_map(transfer.points, surface_triangles(sm.mesh, sm.facet_tags, tags))
     rec = run.recorder
     rec.set_probe("load_map_max_move", float(mapping.moves.max(initial=0.0)), "m")
@@ -139,13 +141,11 @@ class _TransferRecorder:
         self.scapula, self.humerus = bones
         self.comm = V.mesh.comm
         n_owned = V.dofmap.index_map.size_local
+        # and the master of the muscle-scapula contact (muscle_contact = bones): the muscles'
+        # pressure on the scapula
+        tags = [S.MARKERS[n].id for n in SCAPULA_LOAD_SURFACES] + [S.SCAPULA_CONTACT_SURFACE.id]
         load_dofs = np.unique(
-            np.concatenate(
-                [
-                    dolfinx.fem.locate_dofs_topological(V, 2, ft.find(S.MARKERS[n].id))
-                    for n in SCAPULA_LOAD_SURFACES
-                ]
-            )
+            np.concatenate([dolfinx.fem.locate_dofs_topological(V, 2, ft.find(t)) for t in tags])
         )
         self.load_dofs = load_dofs[load_dofs < n_owned]
         self.X_load = V.tabulate_dof_coordinates()[self.load_dofs]
@@ -180,10 +180,14 @@ def part1_ties(ft, cell_tags, params: ShoulderParameters) -> tuple[list[Tie], di
     ties += [Tie("scapula", n) for n in SCAPULA_LOAD_SURFACES]
     ties.append(Tie("actuator", "subscapularis_origin"))
     tied = surfaces(ft, [t.surface for t in ties])
-    if params.humeral_head_contact:
-        # the humerus cells under the muscles' sliding master: carried whole by the humerus
-        tied[S.HUMERUS_HEAD_LAYER.name] = (cell_tags, S.HUMERUS_HEAD_LAYER.id)
-        ties.append(Tie("humerus", S.HUMERUS_HEAD_LAYER.name))
+    layers = (
+        (params.humeral_head_contact, "humerus", S.HUMERUS_HEAD_LAYER),
+        (params.scapula_contact, "scapula", S.SCAPULA_LAYER),
+    )
+    for on, bone, layer in layers:
+        if on:  # the bone cells under the muscles' sliding master: carried whole by the bone
+            tied[layer.name] = (cell_tags, layer.id)
+            ties.append(Tie(bone, layer.name))
     return ties, tied
 
 

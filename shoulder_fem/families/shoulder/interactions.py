@@ -32,6 +32,7 @@ __all__ = [
     "DISTAL_SECTION",
     "HORIZONTAL_DIRECTIONS",
     "MESH_INTEGRATION",
+    "MUSCLE_BONE_PAIRS",
     "ROW_DIRECTIONS",
     "bone_fields",
     "cauchy_stress",
@@ -170,13 +171,24 @@ def surfaces(facet_tags, names) -> dict:
 # ---- contact --------------------------------------------------------------------------------
 
 
+#: The muscle-bone contact pairs, by bone: (pair name, the muscles' faces (slave, one tag per
+#: muscle), the bone's master surface).
+MUSCLE_BONE_PAIRS = {
+    "humerus": ("muscle_humerus", S.MUSCLE_HEAD_FACES, S.HUMERUS_HEAD_SURFACE),
+    "scapula": ("muscle_scapula", S.MUSCLE_SCAPULA_FACES, S.SCAPULA_CONTACT_SURFACE),
+}
+
+
 def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
-    """Glenohumeral contact; muscle-bone contact of the rotator cuff on the humeral head.
+    """Glenohumeral contact; muscle-bone contact of the rotator cuff on the bones.
 
     The two articular surfaces are in large-sliding, frictionless penalty contact (the glenoid
     surface is the slave: its pressure is the paper's Fig. 2). With ``muscle_contact`` =
     ``humeral-head`` the muscles' deep faces slide on the humerus's free surface around the
-    head; the muscles' contact with the scapula is not modelled.
+    head (pair ``muscle_humerus``); with ``bones`` also on the scapula's free surface near them
+    (``muscle_scapula``), with the same penalty, depth and smoothing. Each muscle's faces
+    have their own tag (the forces per muscle: ``Contact.resultants(by_tag=True)``); a muscle that
+    has no face over a bone on this mesh is left out of that pair.
     """
     pairs = [
         ContactPair(
@@ -186,17 +198,22 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
             penalty=params.contact_penalty,
         )
     ]
-    if params.humeral_head_contact:
-        pairs.append(
-            ContactPair(
-                "muscle_humerus",
-                slave=(S.MUSCLE_DEEP_SURFACE.id,),
-                master=MeshSurface((S.HUMERUS_HEAD_SURFACE.id,)),
-                penalty=params.muscle_contact_penalty,
-                search_depth=params.muscle_contact_depth,
-                smoothing=params.muscle_contact_smoothing,
+    bones = {"humerus": params.humeral_head_contact, "scapula": params.scapula_contact}
+    present = set().union(*V.mesh.comm.allgather(set(np.unique(facet_tags.values).tolist())))
+    for bone, on in bones.items():
+        name, faces, master = MUSCLE_BONE_PAIRS[bone]
+        slave = tuple(f.id for f in faces if f.id in present)
+        if on and slave:
+            pairs.append(
+                ContactPair(
+                    name,
+                    slave=slave,
+                    master=MeshSurface((master.id,)),
+                    penalty=params.muscle_contact_penalty,
+                    search_depth=params.muscle_contact_depth,
+                    smoothing=params.muscle_contact_smoothing,
+                )
             )
-        )
     return Contact(
         V,
         u,

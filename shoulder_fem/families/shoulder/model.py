@@ -93,7 +93,12 @@ class ShoulderParameters:
     @property
     def humeral_head_contact(self) -> bool:
         """Whether the rotator cuff slides on the humeral head (``muscle_contact``)."""
-        return self.muscle_contact == "humeral-head"
+        return self.muscle_contact in ("humeral-head", "bones")
+
+    @property
+    def scapula_contact(self) -> bool:
+        """Whether the rotator cuff slides on the scapula too (``muscle_contact = bones``)."""
+        return self.muscle_contact == "bones"
 
     def calibration(self) -> ct.Calibration:
         """The HU calibration of the bones' density (``ct_density_*``)."""
@@ -128,10 +133,15 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     sizes = scene.level(level)
     variants = ("deformable",) if method == "coupled" else ("rigid-bone", "scapula")
     # the subscapularis origin is the actuator: cut it free of the scapula
-    wrap = params.humeral_head_contact
     try:
         meshes = S.build_shoulder_mesh(
-            comm, geometry, sizes, variants, detach=DETACHED, head_layer=wrap
+            comm,
+            geometry,
+            sizes,
+            variants,
+            detach=DETACHED,
+            head_layer=params.humeral_head_contact,
+            scapula_layer=params.scapula_contact,
         )
     except ValueError as err:  # a geometry the builder refuses: say which scene and why
         raise SceneError(f"{scene.source}: {err}") from None
@@ -180,6 +190,7 @@ def scapula_at(model: ShoulderModel, level: str) -> S.ShoulderMesh:
             "scapula",
             detach=DETACHED,
             head_layer=model.params.humeral_head_contact,
+            scapula_layer=model.params.scapula_contact,
         )
     except ValueError as err:
         raise SceneError(f"{model.scene.source}: {err}") from None
@@ -224,10 +235,17 @@ def dofs(model: ShoulderModel) -> int:
 
 
 def head_tags(model: ShoulderModel, mesh, facet_tags) -> dolfinx.mesh.MeshTags:
-    """The facet tags, with the surfaces of muscle-bone contact if it is on (collective)."""
-    if not model.params.humeral_head_contact:
-        return facet_tags
-    return S.head_surface_tags(mesh, facet_tags, S.head_region_radius(model.geometry))
+    """The facet tags, with the surfaces of muscle-bone contact if it is on (collective).
+
+    The muscles' faces over the humeral head and the head's master (``humeral-head`` and
+    ``bones``), then those over the scapula and its master (``bones``).
+    """
+    if model.params.humeral_head_contact:
+        radius = S.head_region_radius(model.geometry)
+        facet_tags = S.head_surface_tags(mesh, facet_tags, radius)
+    if model.params.scapula_contact:
+        facet_tags = S.scapula_surface_tags(mesh, facet_tags, S.scapula_reach(model.geometry))
+    return facet_tags
 
 
 @dataclass(frozen=True)

@@ -17,13 +17,59 @@ from scipy.spatial import cKDTree
 from shoulder_fem.engine.contact import Contact
 from shoulder_fem.engine.rigid_system import RigidSystem
 from shoulder_fem.families.shoulder.geometry import patch_centroid
+from shoulder_fem.families.shoulder.interactions import MUSCLE_BONE_PAIRS
 from shoulder_fem.families.shoulder.measures import VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel
 from shoulder_fem.io.output import atomic_savez
 from shoulder_fem.io.results import Recorder
 from shoulder_fem.meshes import shoulder as S
 
-__all__ = ["record_time_split", "record_von_mises", "save_npz", "save_results", "unknowns"]
+__all__ = [
+    "record_muscle_bone",
+    "record_time_split",
+    "record_von_mises",
+    "save_npz",
+    "save_results",
+    "unknowns",
+]
+
+
+def record_muscle_bone(recorder: Recorder, contact: Contact, x: float) -> None:
+    """The rotator cuff on the bones at output angle ``x`` (deg; collective; muscle contact only).
+
+    Per pair (``muscle_humerus``, ``muscle_scapula``): ``<pair>_contact_force`` and
+    ``<pair>_penetration``; per muscle and bone ``<muscle>_<bone>_contact_force``; per muscle
+    ``<muscle>_bone_contact_force`` (both bones' forces added as vectors); over all pairs
+    ``muscle_bone_contact_force`` and ``muscle_bone_penetration`` (before the scapula's pair:
+    the humeral head's alone). Forces in N (magnitudes of the force on the muscles' faces),
+    penetrations in m.
+    """
+    names = {p.name for p in contact.pairs}
+    if not names & {pair for pair, _, _ in MUSCLE_BONE_PAIRS.values()}:
+        return
+    tagged = contact.resultants(by_tag=True)
+    total, deepest, per_muscle = np.zeros(3), 0.0, {}
+    for bone, (pair, faces, _) in MUSCLE_BONE_PAIRS.items():
+        if pair not in names:
+            continue
+        by_tag = tagged[pair]
+        force = sum((r["force"] for r in by_tag.values()), np.zeros(3))
+        pen = float(max(r["max_penetration"] for r in by_tag.values()))
+        recorder.add_series_point(f"{pair}_contact_force", x, _norm(force), "deg", "N")
+        recorder.add_series_point(f"{pair}_penetration", x, pen, "deg", "m")
+        for muscle, face in zip(S.MUSCLES, faces, strict=True):
+            f = by_tag[face.id]["force"] if face.id in by_tag else np.zeros(3)
+            per_muscle[muscle] = per_muscle.get(muscle, np.zeros(3)) + f
+            recorder.add_series_point(f"{muscle}_{bone}_contact_force", x, _norm(f), "deg", "N")
+        total, deepest = total + force, max(deepest, pen)
+    for muscle, f in per_muscle.items():
+        recorder.add_series_point(f"{muscle}_bone_contact_force", x, _norm(f), "deg", "N")
+    recorder.add_series_point("muscle_bone_contact_force", x, _norm(total), "deg", "N")
+    recorder.add_series_point("muscle_bone_penetration", x, deepest, "deg", "m")
+
+
+def _norm(v: np.ndarray) -> float:
+    return float(np.linalg.norm(v))
 
 
 def record_von_mises(

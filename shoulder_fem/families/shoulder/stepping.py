@@ -33,7 +33,11 @@ from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, unit
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
-from shoulder_fem.families.shoulder.outputs import record_time_split, record_von_mises
+from shoulder_fem.families.shoulder.outputs import (
+    record_muscle_bone,
+    record_time_split,
+    record_von_mises,
+)
 from shoulder_fem.families.shoulder.seating import seat
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.io.fields import FieldWriter
@@ -491,8 +495,7 @@ class AngleOutputs:
     def _joint_series(self, x: float, deg: float, p: np.ndarray, t: np.ndarray) -> None:
         """The humerus's angles and the contact's pressure, place and resultants at ``x`` deg."""
         rec = self.recorder
-        both = self.job.contact.resultants()
-        res, wrap = both["glenohumeral"], both.get("muscle_humerus")
+        res = self.job.contact.resultants()["glenohumeral"]
         rec.add_series_point("humeral_angle", x, deg, "deg", "deg")
         rec.add_series_point("humeral_swing", x, math.degrees(self.swing()), "deg", "deg")
         mean, top = self.cap_position()
@@ -505,13 +508,7 @@ class AngleOutputs:
         rec.add_series_point(
             "glenohumeral_penetration", x, float(res["max_penetration"]), "deg", "m"
         )
-        if wrap is not None:  # the rotator cuff on the humeral head: force, deepest overlap
-            rec.add_series_point(
-                "muscle_bone_contact_force", x, float(np.linalg.norm(wrap["force"])), "deg", "N"
-            )
-            rec.add_series_point(
-                "muscle_bone_penetration", x, float(wrap["max_penetration"]), "deg", "m"
-            )
+        record_muscle_bone(rec, self.job.contact, x)
 
     def _muscle_series(self, x: float) -> None:
         """The muscles' forces and the actuator's displacement at ``x`` deg."""

@@ -217,6 +217,33 @@ def resource_table(cpl: RunData, dec: RunData) -> dict[str, dict[str, Any]]:
     }
 
 
+#: The muscle-bone contact's forces per muscle and bone (runs with ``muscle_contact``):
+#: ``<muscle>_<bone>_contact_force`` series, for the bones of ``CUFF_BONES``.
+CUFF_MUSCLES = ("subscapularis", "supraspinatus", "infraspinatus")
+CUFF_BONES = ("humerus", "scapula")
+
+
+def _cuff_on_bones(cpl: RunData, dec: RunData, angles: np.ndarray) -> dict[str, dict]:
+    """Each muscle's contact force on each bone (N) at ``angles``, both methods.
+
+    The series the coupled run has (none without muscle contact).
+    """
+    out = {}
+    for bone in CUFF_BONES:
+        for muscle in CUFF_MUSCLES:
+            name = f"{muscle}_{bone}_contact_force"
+            c = cpl.series_at(name, angles)
+            if np.all(np.isnan(c)):
+                continue
+            d = dec.series_at(name, angles)
+            out[name] = {"coupled": _listed(c), "decoupled": _listed(d)}
+    return out
+
+
+def _listed(a: np.ndarray) -> list:
+    return [None if math.isnan(v) else float(v) for v in a]
+
+
 def _muscle_forces(
     cpl: RunData, dec: RunData, angles: np.ndarray
 ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, dict[str, float | None]]]:
@@ -278,10 +305,10 @@ def compare_runs(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
     cf_c = cpl.series_at("contact_force", angles)
     cf_d = dec.series_at("contact_force", angles)
     cf_err = {_key(a): _rel(cf_d[i], cf_c[i]) for i, a in enumerate(angles)}
-    # the rotator cuff pressing on the humeral head (runs with muscle_contact only)
-    mb_c = cpl.series_at("muscle_bone_contact_force", angles)
-    mb_d = dec.series_at("muscle_bone_contact_force", angles)
+    # the rotator cuff pressing on the bones (runs with muscle_contact only): in all, each
+    mb_c, mb_d = (r.series_at("muscle_bone_contact_force", angles) for r in (cpl, dec))
     mb_err = {_key(a): _rel(mb_d[i], mb_c[i]) for i, a in enumerate(angles)}
+    cuff = _cuff_on_bones(cpl, dec, angles)
     g_pair, s_pair = _matched_pairs(cpl, dec)
     jac = _jaccard(cpl, dec, angles, g_pair[:2])
     # the humerus's swing and where the glenoid presses on the humeral cartilage (deg)
@@ -306,6 +333,8 @@ def compare_runs(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
             row[f"{muscle}_force_rel_error"] = f_err[muscle].get(_key(a))
         for key, m in motion.items():
             row[key] = {"coupled": m["coupled"][i], "decoupled": m["decoupled"][i]}
+        for key, m in cuff.items():
+            row[f"{key}_n"] = {"coupled": m["coupled"][i], "decoupled": m["decoupled"][i]}
         per_angle.append(row)
 
     ratios = resource_ratios(cpl.summary, dec.summary)

@@ -45,7 +45,7 @@ def _metric_rows(report: dict) -> list[tuple[str, str]]:
         *(
             [
                 (
-                    "cuff-on-head contact force: largest relative error",
+                    "muscle-bone contact force: largest relative error",
                     fmt(report["muscle_bone_contact_force_rel_error"], ".2%"),
                 )
             ]
@@ -221,6 +221,33 @@ def _markdown_motion(report: dict) -> list[str]:
     return lines
 
 
+def _markdown_cuff(report: dict) -> list[str]:
+    """The Markdown of the muscles' contact forces on the bones (none without that contact)."""
+    rows = report.get("per_angle", [])
+    keys = [k for k in (rows[0] if rows else {}) if k.endswith("_contact_force_n")]
+    if not keys:
+        return []
+    head = ["angle deg"]
+    for k in keys:
+        muscle, bone = k.split("_")[:2]
+        head += [f"{muscle} on {bone} cpl N", f"{muscle} on {bone} dec N"]
+    table = [
+        [fmt(r["angle_deg"], "g")]
+        + [fmt(r[k][m], ".3g") for k in keys for m in ("coupled", "decoupled")]
+        for r in rows
+    ]
+    return [
+        "",
+        "## The rotator cuff on the bones",
+        "",
+        "Each muscle's contact force on the humerus (its deep faces over the head) and on the "
+        "scapula (its deep faces over the blade and the glenoid neck): the magnitude of the "
+        "force on the muscle's faces in each muscle-bone contact pair.",
+        "",
+        _markdown_table(head, table),
+    ]
+
+
 def _von_mises_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     """Per angle: the nodal von Mises agreement over the scapula and its glenoid region."""
     head = ["angle deg"]
@@ -304,6 +331,7 @@ def markdown_report(report: dict) -> str:
     lines += ["", "## Per output angle", ""]
     lines += [_markdown_table(head, rows)] if rows else ["No common output angle."]
     lines += _markdown_motion(report)
+    lines += _markdown_cuff(report)
     lines += _markdown_von_mises(report)
     lines += ["", "## Figures", ""]
     for name, caption in FIGURES.items():

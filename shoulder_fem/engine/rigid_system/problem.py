@@ -189,9 +189,8 @@ class ReducedProblem:
         self.layout, self.ends, self.fe = layout, list(ends), fe
         self.step_state, self.stats, self.linear_ties = step_state, stats, linear_ties
         self.comm = layout.comm
-        self.contact = ContactProduct(self.comm)
-        #: The soft tissue's volumetric tangent when it couples across cells (P1 pressure).
-        self.volumetric = ContactProduct(self.comm)
+        # the products of the contact's tangent and of a P1 pressure's volumetric tangent
+        self.contact, self.volumetric = ContactProduct(self.comm), ContactProduct(self.comm)
         self.R0 = [b.rotation.copy() for b in bodies]
         self.phi = np.zeros((len(bodies), 3))
         self.x = PETSc.Vec().createMPI((layout.n_local, layout.n_global), comm=self.comm)
@@ -423,9 +422,7 @@ class ReducedProblem:
             J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         if fe.contact is not None:
             self.contact.add(J, fe, self.P, self.stats)
-        vol = fe.volumetric
-        if vol is not None and not vol.cell_local:
-            self.volumetric.add(J, fe, self.P, self.stats, lambda last: vol.tangent_matrix())
+        add_volumetric_tangent(self, J)
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------
     def _create_jacobian(self) -> PETSc.Mat:
@@ -449,10 +446,19 @@ class ReducedProblem:
             objs.append(self.near_nullspace)
         if self.fe is not None:
             objs += [self.P, self.C]
-        self.contact.destroy()
-        self.volumetric.destroy()
-        for obj in objs:
+        for obj in (*objs, self.contact, self.volumetric):
             obj.destroy()
+
+
+def add_volumetric_tangent(problem: ReducedProblem, J: PETSc.Mat) -> None:
+    """J += Pᵀ K_v P for condensed volumetric terms that couple cells (P1 pressure; collective).
+
+    Merged into J's pattern as the contact's is (P0 terms are in the FE tangent already).
+    """
+    vol = problem.fe.volumetric
+    if vol is not None and not vol.cell_local:
+        add = problem.volumetric.add
+        add(J, problem.fe, problem.P, problem.stats, lambda last: vol.tangent_matrix())
 
 
 def jacobian_is_stale(problem: ReducedProblem) -> bool:

@@ -21,6 +21,11 @@ __all__ = ["SystemReports"]
 class SystemReports:
     """The report methods of :class:`~.system.RigidSystem` (a mixin; all collective)."""
 
+    @property
+    def volumetric(self):
+        """The deformable part's condensed volumetric terms, or ``None``."""
+        return self._fe.volumetric if self._fe is not None else None
+
     def balance(self, name: str) -> BodyBalance:
         """Forces and moments on body ``name`` at the current state (collective).
 

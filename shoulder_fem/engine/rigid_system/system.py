@@ -150,9 +150,8 @@ class RigidSystem(SystemReports, ControlledSystem):
         rigid_regions: Stiff regions of the deformable body (per region, local node indices,
             e.g. a bone's cells' nodes) whose share of every Newton step is made
             a finite rotation (:mod:`~.corotation`); the converged states are unchanged.
-        volumetric: The mean-dilatation terms of nearly incompressible cells of ``u``
-            (:class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`), whose residual
-            is part of ``residual``.
+        volumetric: Condensed volumetric terms of ``u`` whose residual is in ``residual``
+            (:class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`).
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -212,11 +211,8 @@ class RigidSystem(SystemReports, ControlledSystem):
             raise ValueError("RigidSystem: a deformable body (u) needs its residual form")
         V = u.function_space if u is not None else None
         layout = ReducedLayout(self.comm, self.bodies, self.ties, V, surfaces, fixed)
-        self._fe = None
-        if u is not None:
-            self._fe = DeformablePart(
-                u, residual, jacobian, form_compiler_params, contact, layout, volumetric
-            )
+        fe_args = (u, residual, jacobian, form_compiler_params, contact, layout, volumetric)
+        self._fe = DeformablePart(*fe_args) if u is not None else None
         ends = [
             layout.spring_end(s, i, self._index, self.deformable)
             for s in self.springs
@@ -242,11 +238,6 @@ class RigidSystem(SystemReports, ControlledSystem):
         #: may J be rebuilt between solves (:func:`~.problem.rebuild_jacobian`), since a lagged
         #: factorization would meet the new matrix unfilled.
         self._fresh_jacobians = int((options or {}).get("snes_lag_jacobian", 1)) == 1
-
-    @property
-    def volumetric(self):
-        """The deformable part's mean-dilatation terms, or ``None``."""
-        return self._fe.volumetric if self._fe is not None else None
 
     @property
     def dynamic(self) -> bool:

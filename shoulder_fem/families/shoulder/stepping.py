@@ -501,6 +501,9 @@ class AngleOutputs:
         mean, top = self.cap_position()
         rec.add_series_point("humeral_cap_contact_angle", x, mean, "deg", "deg")
         rec.add_series_point("humeral_cap_contact_angle_max", x, top, "deg", "deg")
+        # how far the farthest contact point stays from the cartilage's edge (as meshed)
+        margin = math.degrees(self.cap_half) - top
+        rec.add_series_point("humeral_cap_edge_margin", x, margin, "deg", "deg")
         rec.add_series_point("max_pressure", x, float(p.max()) if len(p) else 0.0, "deg", "Pa")
         rec.add_series_point("max_shear", x, float(t.max()) if len(t) else 0.0, "deg", "Pa")
         rec.add_series_point("contact_force", x, float(np.linalg.norm(res["force"])), "deg", "N")

@@ -56,6 +56,7 @@ MOTION_SERIES = (
     ("humeral_swing", "swing"),
     ("humeral_cap_contact_angle", "contact mean"),
     ("humeral_cap_contact_angle_max", "contact max"),
+    ("humeral_cap_edge_margin", "margin to the edge"),
 )
 
 #: Where the Newton time went (probes ``<stepping>_time_<key>_s`` of the runs), in table order.

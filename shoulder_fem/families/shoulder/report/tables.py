@@ -214,7 +214,8 @@ def _markdown_motion(report: dict) -> list[str]:
             "is not a twist about it). Contact: where the glenoid presses on the humeral "
             "cartilage, in degrees from the cartilage's axis (force-weighted mean and largest), "
             f"in the humerus's reference geometry; the cartilage ends at {fmt(half, '.1f')} "
-            "deg. A contact that reaches that edge has run off the articular surface.",
+            "deg, and the margin is that edge's angle less the largest. A contact that reaches "
+            "that edge (margin 0) has run off the articular surface.",
             "",
             _markdown_table(head, rows),
         ]

@@ -73,6 +73,7 @@ SERIES = (
     "humerus_horizontal_support_force",
     "humeral_cap_contact_angle",
     "humeral_cap_contact_angle_max",
+    "humeral_cap_edge_margin",
 )
 
 

@@ -22,9 +22,12 @@ With p_a = U'(θ_a) and b_a(v) = ∫ φ_a J F⁻ᵀ : ∇v dx (φ_a the pressure
 
 U(θ) = κ/2 (ln θ)² as the compressible laws of :mod:`shoulder_fem.forms.materials`, so
 U'(θ) = κ ln θ / θ and U''(θ) = κ (1 − ln θ)/θ²; both pairs tend to the incompressible solution
-as O(μ/κ) (tested on a homogeneous stretch) and do not lock (a cantilever, tested). p must be
-current before any assembly of a form that holds it: :meth:`MeanDilatation.update` (the solvers
-that take these terms call it before each residual and tangent).
+as O(μ/κ) (tested on a homogeneous stretch) and do not lock (a cantilever, tested). With
+multipliers λ (an augmented Lagrangian, :meth:`MeanDilatation.augment`), p = λ + U'(θ):
+updated until θ = 1 to a tolerance, they give the incompressible solution with a moderate κ
+(tested). p must be current before any assembly of a form that holds it:
+:meth:`MeanDilatation.update` (the solvers that take these terms call it before each residual
+and tangent).
 """
 
 from __future__ import annotations
@@ -116,6 +119,8 @@ class MeanDilatation:
         self._B = fem_petsc.create_matrix(self._b_form)
         self._BtDB: PETSc.Mat | None = None
         self._d = np.zeros(self.n_owned)
+        #: Augmented-Lagrangian multiplier of each pressure DOF (Pa): p = λ + U'(θ).
+        self.multiplier = np.zeros(self.n_owned)
         self._volume_forms: dict[int, tuple] = {}
         self.update()
 
@@ -142,12 +147,29 @@ class MeanDilatation:
         kappa = self.bulk_factor * self.kappa
         with np.errstate(invalid="ignore", divide="ignore"):
             log = np.log(theta)  # NaN for an inverted cell: the residual says so
-            p = kappa * log / theta
+            p = self.multiplier + kappa * log / theta
             self._d = np.where(soft, kappa * (1 - log) / theta**2, 0.0)
         self._d[soft] /= self.volume[soft]
         for f, values in ((self.theta, theta), (self.pressure, p)):
             f.x.array[: self.n_owned] = values
             f.x.scatter_forward()
+
+    def violation(self) -> float:
+        """The largest |ln θ| over the pressure DOFs, now: the volume error (collective)."""
+        self.update()
+        log = np.abs(np.log(self.theta.x.array[: self.n_owned]))
+        return self.comm.allreduce(float(log.max()) if len(log) else 0.0, op=MPI.MAX)
+
+    def augment(self) -> None:
+        """λ ← p: each multiplier takes its current pressure (an augmented-Lagrangian update).
+
+        With p = λ + U'(θ), a state solved again after the update keeps the volume better by
+        about the ratio of the tissue's stiffness to κ (Uzawa); at θ = 1 (ln θ = 0), p = λ is
+        the incompressible pressure, whatever κ.
+        """
+        self.update()
+        self.multiplier[:] = self.pressure.x.array[: self.n_owned]
+        self.update()
 
     def scale_bulk(self, factor: float) -> None:
         """Every bulk modulus at ``factor`` x its own (a continuation; 1 gives them back)."""

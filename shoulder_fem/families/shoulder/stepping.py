@@ -40,6 +40,7 @@ from shoulder_fem.families.shoulder.outputs import (
 )
 from shoulder_fem.families.shoulder.seating import seat
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
+from shoulder_fem.families.shoulder.volume import augment
 from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.io.results import Recorder
 
@@ -150,11 +151,10 @@ class AngleStepper:
         self.max_step = params.max_angle_step
         self.max_cut = int(params.max_cutbacks)
         #: kappa/mu of nearly incompressible soft tissue (the seating's continuation), or None.
-        self.bulk_ratio = (
-            params.soft_tissue_bulk_ratio
-            if params.soft_tissue_formulation == "incompressible"
-            else None
-        )
+        incompressible = params.soft_tissue_formulation == "incompressible"
+        self.bulk_ratio = params.soft_tissue_bulk_ratio if incompressible else None
+        #: The largest |ln θ| of the incompressible tissue at a converged step (:func:`augment`).
+        self.volume_tolerance = params.soft_tissue_volume_tolerance if incompressible else 0.0
         self.log = StepLog()
         self.theta = 0.0
         self.tangent: PETSc.Vec | None = None
@@ -166,6 +166,7 @@ class AngleStepper:
     def start(self) -> None:
         """Seat the joint unloaded (:func:`~.seating.seat`), then control the plate by angle."""
         seat(self.system, self.contact, f"{self.label} 0 deg", self.bulk_ratio)
+        augment(self.system, f"{self.label} 0 deg", self.volume_tolerance)
         self.contact.commit()
         control = self.system.set_control(
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE
@@ -246,12 +247,17 @@ class AngleStepper:
 
         predict()
         system.control.target = target
+        vol = system.volumetric
+        multipliers = None if vol is None else vol.multiplier.copy()
+        name = f"{self.label} {math.degrees(target):.2f} deg"
         try:
-            its = _solve_with_fallback(
-                system, f"{self.label} {math.degrees(target):.2f} deg", snap, predict, self.log
-            )
+            its = _solve_with_fallback(system, name, snap, predict, self.log)
+            # the step's length follows its own solve, not the multipliers' (1-2 each)
+            self.log.newton_iterations += augment(system, name, self.volume_tolerance)
         except ConvergenceError as err:
             system.restore(snap)
+            if multipliers is not None:
+                vol.multiplier[:] = multipliers
             self.log.failed_steps += 1
             return err, 0
         self.contact.commit()

@@ -216,3 +216,37 @@ def test_bad_bulk_modulus_is_refused():
         MeanDilatation(u, ct, {}, dx)
     with pytest.raises(ValueError, match="pressure must be 'P0' or 'P1'"):
         MeanDilatation(u, ct, {TAG: 1.0}, dx, pressure="P2")
+
+
+@pytest.mark.mpi
+def test_a_system_tangent_follows_the_bulk_modulus_of_a_continuation():
+    """RigidSystem's deformable part keeps its assembled K while the form's inputs are the
+    same; at u = 0 the pressure is 0 whatever kappa, so the bulk factor must be part of that
+    key: after scale_bulk(0.01) K is the form's tangent at the scaled kappa (P0 adds it to K)."""
+    from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+    from shoulder_fem.meshes.block import BASE, TOP, build_block
+
+    comm = MPI.COMM_WORLD
+    mesh, ct, tags = build_block(comm, 0.01, 0.04, 2, 4)
+    V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+    u, w = dolfinx.fem.Function(V), ufl.TestFunction(V)
+    dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct, metadata={"quadrature_degree": 2})
+    law = NeoHookean(c10=0.5e6, bulk_modulus=500e6)
+    md = MeanDilatation(u, ct, {int(t): law.bulk_modulus for t in np.unique(ct.values)}, dx)
+    residual = internal_power_finite(Isochoric(law), u, w, dx) + md.residual(w)
+    plate = RigidBody("plate", (0, 0, 0.04), force=[0, 0, 1.0])
+    surfaces = {"base": (tags, BASE.id), "top": (tags, TOP.id)}
+    ties, fixed = [Tie("plate", "top")], ["base"]
+    system = RigidSystem([plate], [], u=u, residual=residual, surfaces=surfaces, ties=ties,
+                         fixed=fixed, volumetric=md)  # fmt: skip
+    fe = system._fe
+    md.scale_bulk(0.01)
+    fe.assemble_tangent()
+    form = dolfinx.fem.form(ufl.derivative(residual, u, ufl.TrialFunction(V)))
+    expected = fem_petsc.assemble_matrix(form)
+    expected.assemble()
+    expected.axpy(1.0, md.tangent_matrix(), structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    expected.axpy(-1.0, fe.K)
+    assert expected.norm() <= 1e-10 * fe.K.norm()
+    system.destroy()
+    md.destroy()

@@ -959,7 +959,7 @@ def _part1_system(options: dict):
     V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
     u = dolfinx.fem.Function(V)
     dx = ufl.Measure("dx", domain=mesh, subdomain_data=cells, metadata=p.quadrature())
-    residual = SI.soft_tissue_residual(u, ufl.TestFunction(V), dx)
+    residual, volumetric = SI.soft_tissue_residual(u, ufl.TestFunction(V), dx, cells, p)
     contact = SI.joint_contact(V, u, ft, p)
     glenoid = SG.patch_centroid(mesh, ft, MS.MARKERS["glenoid_cartilage_bone"].id)
     origin = SG.patch_centroid(mesh, ft, MS.MARKERS["subscapularis_origin"].id)
@@ -973,6 +973,7 @@ def _part1_system(options: dict):
         springs,
         u=u,
         residual=residual,
+        volumetric=volumetric,
         surfaces=tied,
         ties=ties,
         name="order_test",

@@ -7,7 +7,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["JIT_PARAMS", "constant", "owned_flags"]
+__all__ = ["JIT_PARAMS", "constant", "identity_rows", "owned_flags"]
 
 #: C compiler flags of the hot forms' kernels (``jit_params`` of ``dolfinx.fem.form``).
 #: ``-fno-math-errno`` lets the compiler inline and vectorise ``sqrt``, ``exp`` and ``log``
@@ -36,3 +36,20 @@ def owned_flags(imap, local_nodes: np.ndarray, comm: MPI.Comm) -> np.ndarray:
         flags = loc.array > 0.5
     vec.destroy()
     return flags
+
+
+def identity_rows(A: PETSc.Mat, bcs: list, V: dolfinx.fem.FunctionSpace) -> None:
+    """The rows of the Dirichlet DOFs of ``bcs`` in ``A`` made identity rows, columns kept.
+
+    By global number (a matrix whose pattern PETSc widened has lost its local numbering); the
+    pattern is kept for the next fills (collective).
+    """
+    rows = [bc.dof_indices()[0] for bc in bcs]
+    if not rows:
+        return
+    imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
+    local = np.unique(np.concatenate(rows))
+    local = local[local < imap.size_local * bs]
+    nodes = imap.local_to_global(local // bs)
+    A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
+    A.zeroRows((nodes * bs + local % bs).astype(PETSc.IntType), 1.0)

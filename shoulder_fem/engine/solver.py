@@ -27,7 +27,7 @@ import numpy as np
 import ufl
 from petsc4py import PETSc
 
-from shoulder_fem.engine.fem import JIT_PARAMS
+from shoulder_fem.engine.fem import JIT_PARAMS, identity_rows
 from shoulder_fem.engine.progress import Progress
 
 logger = logging.getLogger(__name__)
@@ -300,8 +300,11 @@ class NonlinearSolver:
         volumetric=None,
     ):
         self.volumetric = volumetric
-        #: The Jacobian form's own matrix when the volumetric tangent widens A's pattern.
+        #: The Jacobian form's own matrix when the volumetric tangent widens A's pattern, and
+        #: the entries merged into A so far.
         self._A_form: PETSc.Mat | None = None
+        self._merged = np.zeros(0, dtype=np.int64)
+        self._modes: PETSc.NullSpace | None = None
         if volumetric is not None and (linear or operator is not None or lagged_factorization):
             raise ValueError("volumetric terms need a nonlinear solve with an assembled Jacobian")
         if contact is not None and (linear or operator is not None or lagged_factorization):
@@ -341,6 +344,8 @@ class NonlinearSolver:
             # and the drifting operator need not be symmetric (cg): iterate with GMRES.
             opts["ksp_type"] = "gmres"
             opts.setdefault("ksp_rtol", 1e-12)
+        if volumetric is not None and opts.get("ksp_type") == "cg":
+            raise ValueError("volumetric terms: the Jacobian is not symmetric (Dirichlet rows)")
         self._near_nullspace = near_nullspace or opts.get("pc_type") == "gamg"
         self._operator_changed = True
         self.stats = SolveStats()
@@ -354,6 +359,7 @@ class NonlinearSolver:
             modes = rigid_body_modes(u.function_space)
             self._A.setNearNullSpace(modes)
             self._P.setNearNullSpace(modes)
+            self._modes = modes
         self.snes.setJacobian(self._jacobian, self._A, self._P)
         set_from_options(self.snes, opts)
 
@@ -387,28 +393,7 @@ class NonlinearSolver:
                 A.assemble()
             self._fill_operator(A)
         else:
-            # a volumetric tangent that couples cells widens A's pattern: the form is then
-            # assembled into a matrix of its own (A, rebuilt, has no local numbering left)
-            widens = self.volumetric is not None and not self.volumetric.cell_local
-            if widens and self._A_form is None:
-                self._A_form = fem_petsc.create_matrix(self._J)
-            target = self._A_form if widens else A
-            target.zeroEntries()
-            bcs = self.bcs if self.volumetric is None else []  # its rows: _add_volumetric
-            fem_petsc.assemble_matrix(target, self._J, bcs=bcs)
-            target.assemble()
-            if self.contact is not None:
-                self.contact.add_jacobian(target)
-            if widens:
-                kind = PETSc.Mat.Structure
-                first = not A.assembled  # A has no entries yet: it takes the form's pattern
-                if first:
-                    A.assemble()
-                A.zeroEntries()
-                pattern = kind.DIFFERENT_NONZERO_PATTERN if first else kind.SUBSET_NONZERO_PATTERN
-                A.axpy(1.0, target, structure=pattern)
-            if self.volumetric is not None:
-                self._add_volumetric(A)
+            self._assemble_form_jacobian(A)
         self._operator_changed = False
         refactor = self._refactor or not self._lagged
         # Lagged: the preconditioner matrix P is a separate copy, updated only to refactor;
@@ -423,19 +408,38 @@ class NonlinearSolver:
             self.stats.factorizations += 1
             self._refactor = False
 
-    def _add_volumetric(self, A: PETSc.Mat) -> None:
-        """Add the volumetric cell-mean tangent to ``A``, then make the Dirichlet rows identity."""
-        self.volumetric.update()
-        self.volumetric.add_tangent(A)
-        rows = [bc.dof_indices()[0] for bc in self.bcs]
-        if rows:  # global numbers (a widened A may have lost its local-to-global map)
-            V = self.u.function_space
-            imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
-            local = np.unique(np.concatenate(rows))
-            local = local[local < imap.size_local * bs]
-            nodes = imap.local_to_global(local // bs)
-            A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)  # the next fills
-            A.zeroRows((nodes * bs + local % bs).astype(PETSc.IntType), 1.0)
+    def _assemble_form_jacobian(self, A: PETSc.Mat) -> None:
+        """A = the Jacobian form at u, with the contact's and the volumetric terms' tangents."""
+        vol = self.volumetric
+        if vol is not None:
+            vol.update()  # the form holds the pressure: at this x
+        # a volumetric tangent that couples cells (P1) widens A's pattern: the form is then
+        # assembled into a matrix of its own and merged into A with it
+        widens = vol is not None and not vol.cell_local
+        if widens and self._A_form is None:
+            self._A_form = fem_petsc.create_matrix(self._J)
+        target = self._A_form if widens else A
+        target.zeroEntries()
+        fem_petsc.assemble_matrix(target, self._J, bcs=self.bcs if vol is None else [])
+        target.assemble()
+        if self.contact is not None:
+            self.contact.add_jacobian(target)
+        if vol is None:
+            return
+        if widens:
+            from shoulder_fem.engine.contact import add_to_pattern
+
+            if not A.assembled:
+                A.assemble()  # no entries yet: the first merges give it its pattern
+            A.zeroEntries()
+            comm = A.getComm().tompi4py()
+            for term in (target, vol.tangent_matrix()):  # widened only by entries never merged
+                self._merged = add_to_pattern(A, term, self._merged, comm)
+            if self._modes is not None:  # a widened matrix has lost it
+                A.setNearNullSpace(self._modes)
+        else:
+            vol.add_tangent(A)
+        identity_rows(A, self.bcs, self.u.function_space)
 
     # -- public API ------------------------------------------------------------------------
     def operator_changed(self) -> None:
@@ -444,6 +448,8 @@ class NonlinearSolver:
 
     def assemble_jacobian(self) -> PETSc.Mat:
         """A new matrix: the Jacobian form assembled now, with the Dirichlet rows (collective)."""
+        if self.volumetric is not None:
+            raise ValueError("assemble_jacobian: the volumetric terms' tangent is not in the form")
         A = fem_petsc.assemble_matrix(self._J, bcs=self.bcs)
         A.assemble()
         return A

@@ -107,7 +107,7 @@ class DeformablePart:
         coefficients = dolfinx.cpp.fem.pack_coefficients(self.J_form)
         if self.K is not None and self._same_inputs(constants, coefficients):
             return
-        self._tangent_inputs = (constants, coefficients)
+        self._tangent_inputs = (constants, coefficients, self._bulk_factor())
         self.tangent_assemblies += 1
         if self._K_blocks is None:
             self._K_blocks = fem_petsc.create_matrix(self.J_form, "baij")
@@ -125,11 +125,16 @@ class DeformablePart:
             Kb.destroy()
             self._K_blocks = None
 
+    def _bulk_factor(self) -> float:
+        """The volumetric terms' bulk-modulus factor (1 without them)."""
+        return self.volumetric.bulk_factor if self.volumetric is not None else 1.0
+
     def _same_inputs(self, constants: np.ndarray, coefficients: dict) -> bool:
         """Whether K was assembled from these packed constants and coefficients (collective)."""
         last = self._tangent_inputs
         same = (
             last is not None
+            and last[2] == self._bulk_factor()  # K holds the volumetric tangent at it
             and np.array_equal(last[0], constants)
             and last[1].keys() == coefficients.keys()
             and all(np.array_equal(last[1][k], c) for k, c in coefficients.items())

@@ -467,8 +467,14 @@ def jacobian_is_stale(problem: ReducedProblem) -> bool:
         return False
     info = PETSc.Mat.InfoType.GLOBAL_SUM
     needed = problem.C.getInfo(info)["nz_used"] + problem.contact.C.getInfo(info)["nz_used"]
-    if problem.volumetric.C is not None:  # a P1 pressure's couplings (fixed: never stale)
-        needed += problem.volumetric.C.getInfo(info)["nz_used"]
+    vol = problem.volumetric
+    if vol.C is not None:  # a P1 pressure's couplings beyond the FE product's (fixed)
+        if getattr(vol, "extra", None) is None:
+            union = problem.C.duplicate(copy=True)
+            union.axpy(1.0, vol.C, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            vol.extra = union.getInfo(info)["nz_used"] - problem.C.getInfo(info)["nz_used"]
+            union.destroy()
+        needed += vol.extra
     return problem.J.getInfo(info)["nz_used"] > (1.0 + STALE_FRACTION) * needed
 
 

@@ -1445,28 +1445,10 @@ def _head_layer_elements(info: dict, radius_mm: float) -> np.ndarray:
     ``radius_mm`` of the articular centre (the origin); the cells, every humerus tetrahedron
     with a node on them (gmsh rank only).
     """
-    import gmsh
-
-    node_tags, coords, _ = gmsh.model.mesh.getNodes()
-    xyz = np.zeros((int(node_tags.max()) + 1, 3))
-    xyz[node_tags.astype(np.int64)] = coords.reshape(-1, 3)
-    on = []
-    for ent in info["surfaces"]["humerus_surface"]:
-        types, _, nodes = gmsh.model.mesh.getElements(2, ent)
-        for t, n in zip(types, nodes, strict=True):
-            if t == 2:
-                tri = np.asarray(n, dtype=np.int64).reshape(-1, 3)
-                near = np.linalg.norm(xyz[tri].mean(axis=1), axis=1) < radius_mm
-                on.append(tri[near].ravel())
-    on = np.unique(np.concatenate(on)) if on else np.zeros(0, dtype=np.int64)
-    cells = []
-    for ent in info["volumes"][HUMERUS.name]:
-        types, _, nodes = gmsh.model.mesh.getElements(3, ent)
-        for t, n in zip(types, nodes, strict=True):
-            if t == 4:
-                tet = np.asarray(n, dtype=np.int64).reshape(-1, 4)
-                cells.append(tet[np.isin(tet, on).any(axis=1)])
-    return np.vstack(cells) if cells else np.zeros((0, 4), dtype=np.int64)
+    xyz = _gmsh_node_coordinates()
+    tri = _gmsh_triangles(info, ("humerus_surface",))
+    near = np.linalg.norm(xyz[tri].mean(axis=1), axis=1) < radius_mm
+    return _gmsh_tets_touching(info, HUMERUS.name, np.unique(tri[near]))
 
 
 def scapula_reach(g: ShoulderGeometry) -> float:
@@ -1539,6 +1521,30 @@ def _closest_within(points: np.ndarray, tris: np.ndarray, reach: float):
     return dist, q
 
 
+def _gmsh_node_coordinates() -> np.ndarray:
+    """Coordinates of every gmsh node, indexed by its tag (gmsh rank only)."""
+    import gmsh
+
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    xyz = np.zeros((int(node_tags.max()) + 1, 3))
+    xyz[node_tags.astype(np.int64)] = coords.reshape(-1, 3)
+    return xyz
+
+
+def _gmsh_tets_touching(info: dict, volume: str, on: np.ndarray) -> np.ndarray:
+    """Node tags (gmsh, (n, 4)) of the tetrahedra of ``volume`` with a node in ``on``."""
+    import gmsh
+
+    cells = [np.zeros((0, 4), dtype=np.int64)]
+    for ent in info["volumes"][volume]:
+        types, _, nodes = gmsh.model.mesh.getElements(3, ent)
+        for t, n in zip(types, nodes, strict=True):
+            if t == 4:
+                tet = np.asarray(n, dtype=np.int64).reshape(-1, 4)
+                cells.append(tet[np.isin(tet, on).any(axis=1)])
+    return np.vstack(cells)
+
+
 def _gmsh_triangles(info: dict, names: tuple[str, ...]) -> np.ndarray:
     """Node tags (gmsh, (n, 3)) of the triangles of the named surfaces (gmsh rank only)."""
     import gmsh
@@ -1559,23 +1565,11 @@ def _scapula_layer_elements(info: dict, reach_mm: float) -> np.ndarray:
     ``reach_mm`` of the muscles' free surfaces; the cells, every scapula tetrahedron with a node
     on them (gmsh rank only).
     """
-    import gmsh
-
-    node_tags, coords, _ = gmsh.model.mesh.getNodes()
-    xyz = np.zeros((int(node_tags.max()) + 1, 3))
-    xyz[node_tags.astype(np.int64)] = coords.reshape(-1, 3)
+    xyz = _gmsh_node_coordinates()
     bone = _gmsh_triangles(info, ("scapula_surface",))
     muscle = _gmsh_triangles(info, tuple(f"{m}_surface" for m in MUSCLES))
     dist, _ = _closest_within(xyz[bone].mean(axis=1), xyz[muscle], reach_mm)
-    on = np.unique(bone[np.isfinite(dist)])
-    cells = [np.zeros((0, 4), dtype=np.int64)]
-    for ent in info["volumes"][SCAPULA.name]:
-        types, _, nodes = gmsh.model.mesh.getElements(3, ent)
-        for t, n in zip(types, nodes, strict=True):
-            if t == 4:
-                tet = np.asarray(n, dtype=np.int64).reshape(-1, 4)
-                cells.append(tet[np.isin(tet, on).any(axis=1)])
-    return np.vstack(cells)
+    return _gmsh_tets_touching(info, SCAPULA.name, np.unique(bone[np.isfinite(dist)]))
 
 
 def _facet_triangles(mesh, facets: np.ndarray) -> np.ndarray:

@@ -43,7 +43,7 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.fem import JIT_PARAMS
 
-__all__ = ["MeanDilatation"]
+__all__ = ["MeanDilatation", "VolumeChange"]
 
 
 class MeanDilatation:
@@ -87,13 +87,13 @@ class MeanDilatation:
         self._dx_all = dx
         self.dx = dx(self.ids)
         fco, jit = form_compiler_params or {}, JIT_PARAMS
-        self._fco = fco
         q = ufl.TestFunction(Q)
         Fg = ufl.Identity(3) + ufl.grad(u)
         self._J, self._Finv_T = ufl.det(Fg), ufl.inv(Fg).T
-        self._vec = fem_petsc.create_vector(dolfinx.fem.form(q * self.dx, jit_params=jit))
+        volume = dolfinx.fem.form(q * self.dx, jit_params=jit)
+        self._vec = fem_petsc.create_vector(volume)
         #: The (lumped) reference volume of each owned pressure DOF, ∫ q dx (m^3; 0 outside).
-        self.volume = self._assemble(dolfinx.fem.form(q * self.dx, jit_params=jit))
+        self.volume = self._assemble(volume)
         cell_kappa = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)))
         cells = cell_kappa.function_space.dofmap.list.array  # one DOF per cell
         for tag, kappa in bulk.items():
@@ -121,7 +121,6 @@ class MeanDilatation:
         self._d = np.zeros(self.n_owned)
         #: Augmented-Lagrangian multiplier of each pressure DOF (Pa): p = λ + U'(θ).
         self.multiplier = np.zeros(self.n_owned)
-        self._volume_forms: dict[int, tuple] = {}
         self.update()
 
     def _assemble(self, form) -> np.ndarray:
@@ -211,22 +210,40 @@ class MeanDilatation:
             return
         K.axpy(1.0, self.tangent_matrix(), structure=kind.DIFFERENT_NONZERO_PATTERN)
 
-    def volume_change(self, tag: int) -> float:
-        """Relative volume change ∫J dx / |Ω| − 1 of the cells of ``tag``, now (collective)."""
-        if tag not in self._volume_forms:
-            dx = self._dx_all(int(tag))
-            self._volume_forms[tag] = (
-                dolfinx.fem.form(self._J * dx, form_compiler_params=self._fco),
-                dolfinx.fem.form(1.0 * dx),
-            )
-        now, ref = (
-            self.comm.allreduce(dolfinx.fem.assemble_scalar(f), op=MPI.SUM)
-            for f in self._volume_forms[tag]
-        )
-        return float(now / ref - 1.0)
-
     def destroy(self) -> None:
         """Free the PETSc objects."""
         for obj in (self._B, self._BtDB, self._vec):
             if obj is not None:
                 obj.destroy()
+
+
+class VolumeChange:
+    """Relative volume change ∫J dx / |Ω| − 1 of the cells of each tag, at ``u`` (collective).
+
+    Args:
+        u: Displacement (m), a 3D vector Lagrange function.
+        dx: Volume measure with the cell tags as subdomain data.
+        tags: The cell tags measured.
+        form_compiler_params: Passed to ``dolfinx.fem.form``.
+    """
+
+    def __init__(self, u, dx: ufl.Measure, tags, form_compiler_params: dict | None = None):
+        self.comm = u.function_space.mesh.comm
+        J = ufl.det(ufl.Identity(3) + ufl.grad(u))
+        fco = form_compiler_params or {}
+        #: Per tag, the current volume's form and the reference volume (m^3).
+        self._forms = {}
+        for tag in tags:
+            ref = dolfinx.fem.assemble_scalar(dolfinx.fem.form(1.0 * dx(int(tag))))
+            self._forms[int(tag)] = (
+                dolfinx.fem.form(J * dx(int(tag)), form_compiler_params=fco),
+                self.comm.allreduce(ref, op=MPI.SUM),
+            )
+
+    def __call__(self) -> dict[int, float]:
+        """The relative volume change of each tag's cells now, by tag."""
+        out = {}
+        for tag, (form, ref) in self._forms.items():
+            now = self.comm.allreduce(dolfinx.fem.assemble_scalar(form), op=MPI.SUM)
+            out[tag] = now / ref - 1.0
+        return out

@@ -18,6 +18,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import Contact
+from shoulder_fem.engine.mean_dilatation import VolumeChange
 from shoulder_fem.engine.stress_recovery import NodalStress
 from shoulder_fem.families.shoulder.geometry import cap_angles, gather_rows
 from shoulder_fem.families.shoulder.interactions import muscle_forms
@@ -58,15 +59,7 @@ class Probe:
         self.comm = mesh.comm
         dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=params.quadrature())
         self._muscle = muscle_forms(u, ufl.TestFunction(V), dx, params, volumetric)
-        J = ufl.det(ufl.Identity(3) + ufl.grad(u))
-        fco = params.quadrature()
-        self._volume = {}  # soft body -> (current volume form, reference volume m^3)
-        for b in SOFT_BODIES:
-            ref = dolfinx.fem.assemble_scalar(dolfinx.fem.form(1.0 * dx(b.id)))
-            self._volume[b.name] = (
-                dolfinx.fem.form(J * dx(b.id), form_compiler_params=fco),
-                self.comm.allreduce(ref, op=MPI.SUM),
-            )
+        self._volume = VolumeChange(u, dx, [b.id for b in SOFT_BODIES], params.quadrature())
         self._vec = fem_petsc.create_vector(next(iter(self._muscle.values())))
         n_owned = V.dofmap.index_map.size_local
         self._origin = {}
@@ -98,11 +91,8 @@ class Probe:
 
     def volume_changes(self) -> dict[str, float]:
         """Relative volume change ∫J dx / |Ω| − 1 of each soft body, by name (collective)."""
-        out = {}
-        for name, (form, ref) in self._volume.items():
-            now = self.comm.allreduce(dolfinx.fem.assemble_scalar(form), op=MPI.SUM)
-            out[name] = now / ref - 1.0
-        return out
+        changes = self._volume()
+        return {b.name: changes[b.id] for b in SOFT_BODIES}
 
     def glenoid(self, pressure, shear) -> tuple[np.ndarray, np.ndarray]:
         """Nodal contact pressure and shear (Pa) at the glenoid points (gathered on every rank).

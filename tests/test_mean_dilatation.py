@@ -92,6 +92,7 @@ def test_tangent_is_the_derivative_of_the_residual(pressure):
     exact = np.concatenate(comm.allgather(Kv.array_r.copy()))
     h = 1e-6
     fd = (residual(x0 + h * direction) - residual(x0 - h * direction)) / (2 * h)
+    # central differences of the residual: truncation ~ h^2, round-off ~ eps/h, both << 1e-7
     assert np.linalg.norm(fd - exact) <= 1e-7 * np.linalg.norm(exact)
 
 
@@ -156,7 +157,7 @@ def test_an_augmented_lagrangian_gives_the_incompressible_answer_with_a_soft_pen
     # kappa/mu = 10: as a plain penalty 4.4 % off the hand calculation; with the multipliers
     # updated until |ln theta| <= 1e-11, the incompressible answer to round-off
     plain, _, _ = _uniaxial(10.0, "P1")
-    assert abs(plain) > 0.01  # measured: -4.4e-2
+    assert abs(plain) > 0.01  # O(mu/kappa) = 0.1 as a penalty; measured: -4.4e-2
     # measured with them: stress -9.8e-12, volume 6.5e-12, lateral stretch 2.9e-12
     for pressure in ("P0", "P1"):
         stress, volume, lateral = _uniaxial(10.0, pressure, tolerance=1e-11)
@@ -199,6 +200,7 @@ def test_a_nearly_incompressible_cantilever_does_not_lock():
         # measured: P0 +0.5 %, -0.0 %; P1 -5.0 %, -5.7 % (two cells through the depth)
         assert abs(soft / timoshenko - 1) < tol and abs(hard / timoshenko - 1) < tol
         assert abs(hard / soft - 1) < 0.01  # measured: -0.5 % (P0), -0.7 % (P1)
+    # the reference of both: Timoshenko's beam (hand calculation above)
     locked = -_tip_deflection(1e5, False)
     assert locked / timoshenko < 0.92  # measured: 0.893 (pure P2, the same mesh)
 
@@ -247,6 +249,7 @@ def test_a_system_tangent_follows_the_bulk_modulus_of_a_continuation():
     expected.assemble()
     expected.axpy(1.0, md.tangent_matrix(), structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
     expected.axpy(-1.0, fe.K)
+    # the same tangent by another route: the form and the volumetric matrix assembled afresh
     assert expected.norm() <= 1e-10 * fe.K.norm()
     system.destroy()
     md.destroy()

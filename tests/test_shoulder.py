@@ -1064,9 +1064,11 @@ def test_nearly_incompressible_tissue_is_seated_by_continuation(tmp_path_factory
     """The unloaded solve with incompressible soft tissue (kappa/mu = 1000): a continuation in
     the bulk modulus (x 10 per solve from kappa/mu = 10). The factors by hand; at kappa/mu = 100,
     which also seats directly, the continuation's state is the direct solve's to the solver's
-    tolerance (|F| <= 1e-3 N); at 1000 the direct solve fails at 0 deg (measured:
-    DIVERGED_MAX_IT) and the continuation seats the joint (decoupled, coarse, to 0.5 deg)."""
-    from shoulder_fem.families.shoulder import seating
+    tolerance (|F| <= 1e-3 N); at 1000 the direct solve with full Newton steps fails at 0 deg
+    (measured: DIVERGED_MAX_IT) and the continuation seats the joint (decoupled, coarse, to 0.5
+    deg); the direct solve retried with the l2 line search (the seating's retry) seats it too,
+    in the same state."""
+    from shoulder_fem.families.shoulder import newton, seating
 
     assert seating.bulk_factors(None) == [1.0] and seating.bulk_factors(10.0) == [1.0]
     assert np.allclose(seating.bulk_factors(1000.0), [0.01, 0.1, 1.0], rtol=1e-12)
@@ -1089,9 +1091,18 @@ def test_nearly_incompressible_tissue_is_seated_by_continuation(tmp_path_factory
     for key in ("contact_force", "subscapularis_force", "infraspinatus_force"):
         a, b = _series(direct, key)[1], _series(stages, key)[1]
         assert np.abs(a - b).max() <= 1e-3, (key, a, b)
+    whole = run(1000.0, False, "whole")
+    assert whole.status == "ok"
+    # full Newton steps alone (no line-search retry): the direct seating fails
+    monkeypatch.setattr(newton, "FALLBACK_LINESEARCH", "basic")
     with pytest.raises(api.RunFailed, match="0 deg"):
         run(1000.0, True, "whole_direct")
-    assert run(1000.0, False, "whole").status == "ok"
+    # with the seating's l2 retry the direct solve seats too, in the continuation's state
+    monkeypatch.setattr(newton, "FALLBACK_LINESEARCH", "l2")
+    retried = run(1000.0, True, "whole_retried")
+    for key in ("contact_force", "subscapularis_force", "infraspinatus_force"):
+        a, b = _series(retried, key)[1], _series(whole, key)[1]
+        assert np.abs(a - b).max() <= 1e-3, (key, a, b)
 
 
 def test_a_stiff_contact_penalty_is_seated_by_continuation(tmp_path_factory, monkeypatch):
@@ -1100,10 +1111,10 @@ def test_a_stiff_contact_penalty_is_seated_by_continuation(tmp_path_factory, mon
     muscle contact), whose joint 15 MPa/mm also seats directly, the continuation's state is the
     direct solve's, to the solver's tolerance (|F| <= 1e-3 N: the joint force within 1e-3 N,
     measured 6.5e-4 of 1.61 N); on the whole model (the scene) the direct solve fails at 0 deg
-    at 15 MPa/mm (measured: DIVERGED_MAX_IT) and the continuation seats the joint (decoupled,
-    coarse, to 1 deg). (Before the segments' centroid fan, the earlier model's direct solve
-    failed at 50 MPa/mm; it converges now.)"""
-    from shoulder_fem.families.shoulder import seating
+    at 15 MPa/mm with full Newton steps (measured: DIVERGED_MAX_IT) and the continuation seats
+    the joint (decoupled, coarse, to 1 deg). (Before the segments' centroid fan, the earlier
+    model's direct solve failed at 50 MPa/mm; it converges now.)"""
+    from shoulder_fem.families.shoulder import newton, seating
 
     assert seating.seating_factors(5e9) == [1.0] and seating.seating_factors(1e9) == [1.0]
     assert np.allclose(seating.seating_factors(5e10), [0.1, 0.3, 0.9, 1.0], rtol=1e-12)
@@ -1122,6 +1133,7 @@ def test_a_stiff_contact_penalty_is_seated_by_continuation(tmp_path_factory, mon
     for key in ("contact_force", "subscapularis_force", "infraspinatus_force"):
         a, b = _series(direct, key)[1], _series(stages, key)[1]
         assert np.abs(a - b).max() <= 1e-3, (key, a, b)
+    assert run([], False, "whole").status == "ok"
+    monkeypatch.setattr(newton, "FALLBACK_LINESEARCH", "basic")  # full Newton steps alone
     with pytest.raises(api.RunFailed, match="0 deg"):
         run([], True, "whole_direct")
-    assert run([], False, "whole").status == "ok"

@@ -33,6 +33,13 @@ from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, unit
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
+from shoulder_fem.families.shoulder.newton import (
+    DIVERGENCE_TOLERANCE,
+    FALLBACK_LINESEARCH,
+    FALLBACK_MAX_IT,
+    SNES_OPTIONS,
+    solve_with_fallback,
+)
 from shoulder_fem.families.shoulder.outputs import (
     record_muscle_bone,
     record_time_split,
@@ -66,33 +73,6 @@ logger = logging.getLogger(__name__)
 #: Displacement direction of the subscapularis origin plate: medial, along the blade.
 ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 
-#: Newton settings of the nonlinear solves. Joint forces are ~10-100 N: atol 1e-3 N is 1e-5 of
-#: them. Newton converges quadratically to the end: the contact's tangent includes the change
-#: of its segments as the surfaces slide (:mod:`shoulder_fem.engine.contact.segment_tangent`;
-#: without it the tail was linear, 0.44-0.56 per iteration at coarse). Full Newton steps
-#: (``basic``; each shortened by the trial-state guard when it would invert a tissue element
-#: or give a non-finite residual) are the fastest almost everywhere: the steps take 3-6
-#: iterations. Where a full step overshoots from one contact state into another (part 1, the
-#: first step at ``paper``: the residual from 198 to 4 030 N, then 15 guarded iterations without
-#: converging; at coarse 30 -> 35 deg, likewise) the ``l2`` line search (a secant minimisation
-#: of |F|^2 along the Newton direction) converges in 4-11. So a step's solve whose residual
-#: grows beyond ``DIVERGENCE_TOLERANCE`` times its start, or that has not converged in
-#: ``snes_max_it`` = 15 iterations, is retried from the step's start with ``FALLBACK_LINESEARCH``
-#: (up to ``FALLBACK_MAX_IT`` iterations, no divergence test) before the step is cut back. The
-#: unloaded solve has no divergence test (its residual oscillates by 10x and more on the way
-#: while the contact seats, in some scenes).
-#: ``l2`` everywhere is 3-5 times slower in the coupled solve (residual decrease ~0.9 per
-#: iteration from the first step on; ``bt`` and ``cp`` too; ``bt`` as the fallback failed the
-#: first step at ``paper`` in 60 iterations).
-SNES_OPTIONS = {
-    "snes_rtol": 1e-8,
-    "snes_atol": 1e-3,
-    "snes_max_it": 15,
-    "snes_linesearch_type": "basic",
-}
-FALLBACK_LINESEARCH = "l2"
-FALLBACK_MAX_IT = 60
-DIVERGENCE_TOLERANCE = 10.0
 
 #: Residual of the angle equation per radian of twist error (N/rad): with ``snes_atol`` =
 #: 1e-3 N a converged step is within 1e-8 rad (6e-7 deg) of its target angle.
@@ -251,7 +231,7 @@ class AngleStepper:
         multipliers = None if vol is None else vol.multiplier.copy()
         name = f"{self.label} {math.degrees(target):.2f} deg"
         try:
-            its = _solve_with_fallback(system, name, snap, predict, self.log)
+            its = solve_with_fallback(system, name, snap, predict, self.log)
             # the step's length follows its own solve, not the multipliers' (1-2 each)
             self.log.newton_iterations += augment(system, name, self.volume_tolerance)
         except ConvergenceError as err:
@@ -356,44 +336,6 @@ def drive_rotation(
     finally:
         progress.close()
         stepper.destroy()
-
-
-def _solve_with_fallback(system: RigidSystem, step: str, snap, predict, log: StepLog) -> int:
-    """Solve; if Newton ran out of iterations, solve again with the ``FALLBACK_LINESEARCH``.
-
-    The second solve starts from ``snap`` (re-predicted by ``predict()``). Returns the Newton
-    iterations of both solves.
-
-    Raises:
-        ConvergenceError: Both solves failed (the reason of the second).
-    """
-    try:
-        return system.solve(step=step)
-    except ConvergenceError as err:
-        original = system.linesearch
-        if original == FALLBACK_LINESEARCH or not any(
-            why in err.reason for why in ("MAX_IT", "DTOL")
-        ):
-            raise  # a failed factorization: the step is too long
-        logger.info("%s: retried with the %s line search", step, FALLBACK_LINESEARCH)
-        logger.debug("%s: the full-step solve: %s", step, err.reason)
-        log.fallbacks += 1
-        log.newton_iterations += err.iterations
-        system.restore(snap)
-        predict()
-        _, _, _, max_it = system.snes.getTolerances()
-        fallback = {"snes_linesearch_type": FALLBACK_LINESEARCH, "snes_divergence_tolerance": -1.0}
-        system.set_options(fallback | {"snes_max_it": FALLBACK_MAX_IT})
-        try:
-            return system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search)")
-        finally:
-            system.set_options(
-                {
-                    "snes_linesearch_type": original,
-                    "snes_divergence_tolerance": DIVERGENCE_TOLERANCE,
-                    "snes_max_it": max_it,
-                }
-            )
 
 
 # ---- one stepping with its outputs ----------------------------------------------------------

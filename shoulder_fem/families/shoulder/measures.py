@@ -55,7 +55,7 @@ class Probe:
         self.volumetric = volumetric
         mesh = V.mesh
         self.u, self.V, self.mesh, self.contact = u, V, mesh, contact
-        self.cell_tags = cell_tags
+        self.cell_tags, self.facet_tags = cell_tags, facet_tags
         self.comm = mesh.comm
         dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=params.quadrature())
         self._muscle = muscle_forms(u, ufl.TestFunction(V), dx, params, volumetric)

@@ -1,9 +1,9 @@
 """The unloaded solve of the shoulder (the joint seating), by continuation where it needs one.
 
 At rest the faceted cartilage layers overlap a little, so the first Newton residual is the
-penalty times that overlap: about 240 N at ``coarse`` with the default 5 MPa/mm, which Newton
-resolves in 9 iterations. Ten times stiffer, the first residual is 2 400 N and Newton cycles
-between active sets without converging (measured at 50 MPa/mm: no convergence in 60
+penalty times that overlap: about 240 N at ``coarse`` with 5 MPa/mm (the earlier default),
+which Newton resolves in 9 iterations. Ten times stiffer, the first residual is 2 400 N and
+Newton cycles between active sets without converging (measured at 50 MPa/mm: no convergence in 60
 iterations). The same equilibrium is reached by a continuation: each pair's penalty scaled
 down to :data:`SEATING_PENALTY` for the stiffest (the glenohumeral pair's), then raised by
 :data:`PENALTY_RATIO` per solve up to its own, each solve starting from the one before. Only
@@ -38,8 +38,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: The largest penalty (Pa/m) the seating is solved with directly: the default's (5 MPa/mm),
-#: which seats in 9 Newton iterations at ``coarse``.
+#: The largest penalty (Pa/m) the seating is solved with directly: 5 MPa/mm, which seats in 9
+#: Newton iterations at ``coarse`` (the default 60 MPa/mm: 5/60, 0.25, 0.75, then 1).
 SEATING_PENALTY = 5e9
 #: The penalty's growth from one continuation solve to the next (measured at ``coarse``,
 #: 50 MPa/mm: 8, 4 and 3 iterations at 0.1, 0.3 and 0.9 of it, then the full penalty).

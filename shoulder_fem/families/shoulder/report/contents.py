@@ -59,6 +59,16 @@ MOTION_SERIES = (
     ("humeral_cap_edge_margin", "margin to the edge"),
 )
 
+#: The glenohumeral contact's penalty compared per angle (``<series>`` in ``per_angle``): the
+#: series, its column label, the factor from the runs' SI value and its unit.
+CONTACT_SERIES = (
+    ("glenohumeral_penetration", "deepest overlap", 1e3, "mm"),
+    ("glenohumeral_overlap", "penalty overlap", 1e6, "um"),
+    ("glenohumeral_glenoid_layer", "glenoid layer", 1e6, "um"),
+    ("glenohumeral_humeral_layer", "humeral layer", 1e6, "um"),
+    ("glenohumeral_penalty_share", "penalty share", 1e2, "%"),
+)
+
 #: Where the Newton time went (probes ``<stepping>_time_<key>_s`` of the runs), in table order.
 TIME_SPLIT = (
     ("newton", "Newton solves, in all"),

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from shoulder_fem.families.shoulder.report.contents import (
+    CONTACT_SERIES,
     MOTION_SERIES,
     MPA,
     RESOURCE_ROWS,
@@ -283,6 +284,27 @@ def _matched_pairs(cpl: RunData, dec: RunData) -> tuple[tuple, tuple]:
     return g_pair, s_pair
 
 
+def _both_series(cpl: RunData, dec: RunData, angles: np.ndarray) -> dict[str, dict]:
+    """Both runs' series compared per angle as they are.
+
+    The humerus's swing and where the glenoid presses on the humeral cartilage
+    (``<series>_deg``), and the glenohumeral penalty's overlap and share of the joint's
+    approach (where the coupled run has them).
+    """
+    out = {
+        f"{name}_deg": {
+            "coupled": cpl.series_at(name, angles),
+            "decoupled": dec.series_at(name, angles),
+        }
+        for name, _ in MOTION_SERIES
+    }
+    for name, *_ in CONTACT_SERIES:
+        c = cpl.series_at(name, angles)
+        if not np.all(np.isnan(c)):
+            out[name] = {"coupled": c, "decoupled": dec.series_at(name, angles)}
+    return out
+
+
 def compare_runs(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
     """Every metric between the two runs (not yet JSON-converted), and the scapula vertex pairs.
 
@@ -311,14 +333,7 @@ def compare_runs(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
     cuff = _cuff_on_bones(cpl, dec, angles)
     g_pair, s_pair = _matched_pairs(cpl, dec)
     jac = _jaccard(cpl, dec, angles, g_pair[:2])
-    # the humerus's swing and where the glenoid presses on the humeral cartilage (deg)
-    motion = {
-        f"{name}_deg": {
-            "coupled": cpl.series_at(name, angles),
-            "decoupled": dec.series_at(name, angles),
-        }
-        for name, _ in MOTION_SERIES
-    }
+    both = _both_series(cpl, dec, angles)
     per_angle = []
     for i, a in enumerate(angles):
         row: dict[str, Any] = {
@@ -331,7 +346,7 @@ def compare_runs(cpl: RunData, dec: RunData) -> tuple[dict[str, Any], tuple]:
         for muscle, f in forces.items():
             row[f"{muscle}_force_n"] = {"coupled": f["coupled"][i], "decoupled": f["decoupled"][i]}
             row[f"{muscle}_force_rel_error"] = f_err[muscle].get(_key(a))
-        for key, m in motion.items():
+        for key, m in both.items():
             row[key] = {"coupled": m["coupled"][i], "decoupled": m["decoupled"][i]}
         for key, m in cuff.items():
             row[f"{key}_n"] = {"coupled": m["coupled"][i], "decoupled": m["decoupled"][i]}

@@ -7,6 +7,7 @@ holds it), so a report read back from disk prints the same tables.
 from __future__ import annotations
 
 from shoulder_fem.families.shoulder.report.contents import (
+    CONTACT_SERIES,
     FIGURES,
     METHODS,
     MOTION_SERIES,
@@ -249,6 +250,38 @@ def _markdown_cuff(report: dict) -> list[str]:
     ]
 
 
+def _markdown_penalty(report: dict) -> list[str]:
+    """The Markdown of the glenohumeral penalty's overlap and share (none without the series)."""
+    rows = report.get("per_angle", [])
+    series = [c for c in CONTACT_SERIES if rows and c[0] in rows[0]]
+    if not series:
+        return []
+    head = ["angle deg"]
+    for _, label, _, unit in series:
+        head += [f"{label} cpl {unit}", f"{label} dec {unit}"]
+    table = [
+        [fmt(r["angle_deg"], "g")]
+        + [
+            fmt(None if r[name][m] is None else r[name][m] * scale, ".3g")
+            for name, _, scale, _ in series
+            for m in ("coupled", "decoupled")
+        ]
+        for r in rows
+    ]
+    return [
+        "",
+        "## The glenohumeral contact's penalty",
+        "",
+        "Deepest overlap: the largest penetration at a contact point. Under the pressure the "
+        "bones approach by the penalty's overlap p / eps plus the two cartilage layers' "
+        "compressions (each layer's thickness change under the glenoid's nodes in contact), "
+        "all weighted by the nodal pressure; the penalty share is the overlap's part of that "
+        "approach (issue 20: at most 10 % for a contact that does not set the pressure).",
+        "",
+        _markdown_table(head, table),
+    ]
+
+
 def _von_mises_rows(report: dict) -> tuple[list[str], list[list[str]]]:
     """Per angle: the nodal von Mises agreement over the scapula and its glenoid region."""
     head = ["angle deg"]
@@ -333,6 +366,7 @@ def markdown_report(report: dict) -> str:
     lines += [_markdown_table(head, rows)] if rows else ["No common output angle."]
     lines += _markdown_motion(report)
     lines += _markdown_cuff(report)
+    lines += _markdown_penalty(report)
     lines += _markdown_von_mises(report)
     lines += ["", "## Figures", ""]
     for name, caption in FIGURES.items():

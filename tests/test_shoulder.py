@@ -35,20 +35,15 @@ from shoulder_fem.scene import load_scene
 
 FINAL, EVERY = 60.0, 10.0
 #: Decoupled vs coupled at the coarse level, 0-60 deg (measured values in the README): the
-#: paper's criteria (issue 20). Measured with the cuff sliding on the humeral head alone (the
-#: paper's supports): correlation 0.9999, slope 1.0059, pressure 3.6 % (at 60 deg, where the
-#: glenoid rides on the edge of the 70-deg humeral cartilage), muscle forces 0.89 % (the
-#: supraspinatus at 60 deg). With the cuff on the scapula too (the scene as it is, issue 20's
-#: item 1): correlation 1.0000, slope 1.0093, pressure 1.6 %, muscle forces 1.009 %: the
-#: supraspinatus at 60 deg (7.48 N coupled, 7.56 N decoupled), whose 0.8 N on the scapula
-#: differs by as much between part 1's rigid scapula and the coupled one (0.78 / 0.86 N);
-#: every other muscle and angle within 0.96 %. Hence 1.25 % for the muscle forces, not the
-#: paper's 1 %. (The earlier model met a pressure bound of 3 %: 0.99 %.)
+#: paper's criteria (issue 20). Measured on the scene as it is (the cuff on both bones, the
+#: 60 MPa/mm penalty): correlation 1.0000, slope 1.0054, pressure 2.8 % (at 30 deg), muscle
+#: forces 0.78 % (the supraspinatus at 60 deg). (With the earlier 5 MPa/mm the supraspinatus
+#: differed by 1.009 % at 60 deg and the bound was 1.25 %.)
 COARSE_TOLERANCES = {
     "von_mises_correlation_min": 0.999,
     "von_mises_slope": (0.98, 1.02),
     "max_pressure_rel_error": 0.05,
-    "muscle_force_rel_error": 0.0125,
+    "muscle_force_rel_error": 0.01,
 }
 SERIES = (
     "humeral_angle",
@@ -366,30 +361,23 @@ def test_decoupled_matches_coupled_within_the_coarse_tolerances(study):
         assert [float(a) for a in by_angle] == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0], by_angle
         largest = max(abs(e) for e in by_angle.values())
         # the report's figure is the paper's two muscles' (Fig. 3); every muscle, the
-        # supraspinatus too, within the tolerance (measured 1.009 % for it at 60 deg; 0.89 %
-        # without the cuff on the scapula)
+        # supraspinatus too, within the paper's 1 % (measured 0.78 % for it at 60 deg with the
+        # 60 MPa/mm penalty; 1.009 % with the earlier 5 MPa/mm)
         if muscle != "supraspinatus":
             assert largest <= m["muscle_force_rel_error"], (muscle, by_angle)
         assert largest <= tol["muscle_force_rel_error"], (muscle, by_angle)
     assert m["muscle_force_rel_error"] <= tol["muscle_force_rel_error"], m
     # the nodal von Mises stress (tensor recipe, Abaqus/CalculiX) at every output angle, over
-    # the scapula and its glenoid region: the paper's criteria (measured at coarse: slopes
-    # 0.996-1.011, r >= 0.9992)
+    # the scapula and its glenoid region: the paper's criteria (measured at coarse with the
+    # 60 MPa/mm penalty: scapula r >= 0.99997, slopes 0.9993-1.0072; glenoid region
+    # r >= 0.99957, slopes 0.9991-1.0076. With 5 MPa/mm the glenoid region missed them at
+    # 60 deg: r 0.9989, slope 1.045)
     rows = m["von_mises_per_angle"]
     assert np.allclose([r["angle_deg"] for r in rows], np.arange(0.0, 61.0, 10.0), atol=1e-9)
     for r in rows:
-        assert r["scapula"]["correlation"] >= tol["von_mises_correlation_min"], r
-        assert lo <= r["scapula"]["slope"] <= hi, r
-        # the glenoid region misses the criteria at 60 deg at this level, where the glenoid
-        # rides on the edge of the 70-deg humeral cartilage (measured r 0.9989, slope 1.045;
-        # r 1.0000, slopes 1.0005-1.0037 at 0-50 deg; at medium it meets them at every angle):
-        # reported in the README, bounded here by the measured values
-        g = r["glenoid_region"]
-        if r["angle_deg"] > 55.0:
-            assert g["correlation"] >= 0.998 and 0.98 <= g["slope"] <= 1.05, r
-        else:
-            assert g["correlation"] >= tol["von_mises_correlation_min"], r
-            assert lo <= g["slope"] <= hi, r
+        for region in ("scapula", "glenoid_region"):
+            assert r[region]["correlation"] >= tol["von_mises_correlation_min"], r
+            assert lo <= r[region]["slope"] <= hi, r
 
 
 def test_swing_and_twist_by_hand():

@@ -101,6 +101,7 @@ def run(
     make_parents: bool = True,
     petsc_options: dict | None = None,
     replace: bool = False,
+    part1_from: str | Path | None = None,
 ) -> Result:
     """Run ``scene`` with ``method`` ("coupled" or "decoupled") and write ``out``.
 
@@ -120,6 +121,8 @@ def run(
     (``petsc_options``) and an option no solver read is a warning and listed too
     (``petsc_options_unused``: misspelt, or for no solver of this run).
 
+    ``part1_from``: a finished decoupled run whose part 1 this one takes (:func:`sweep`).
+
     Returns:
         The run's summary.
     """
@@ -133,6 +136,7 @@ def run(
     fam = scene_family(scene, (method,))
     level = level or scene.default_level
     scene.level(level)  # unknown level → SceneError now
+    part1_from = _part1_source(scene, method, level, part1_from)
     out = Path(out)
     if make_parents:
         _make_parent(out, comm)
@@ -159,7 +163,7 @@ def run(
         if comm.rank == 0:
             fields.mkdir(exist_ok=True)
         comm.Barrier()
-        context = RunContext(recorder, monitor, fields, solver_options)
+        context = RunContext(recorder, monitor, fields, solver_options, part1_from)
         failure = _run_method(fam.methods[method], model, context, method, petsc_options, comm)
         data = recorder.write_summary(monitor.finish(outdir.path), monitor.stages)
         final = outdir.commit()
@@ -167,6 +171,21 @@ def run(
     if failure is not None:
         raise RunFailed(f"{failure} (steps before it are in {final})", result) from failure
     return result
+
+
+def _part1_source(scene: Scene, method: str, level: str, folder) -> Path | None:
+    """``folder`` (or None) checked as the part 1 of this run (before anything is written)."""
+    if folder is None:
+        return None
+    folder = Path(folder)
+    if method != "decoupled" or scene.family != "shoulder":
+        raise SceneError(
+            f"part1_from {folder}: only the shoulder's decoupled method takes a recorded part 1"
+        )
+    from shoulder_fem.families.shoulder.reuse import check_source, read_source
+
+    check_source(scene, level, read_source(folder), f"--from {folder}")
+    return folder.resolve()
 
 
 def _run_method(function, model, context, method: str, petsc_options, comm):
@@ -208,3 +227,65 @@ def _report_petsc_options(recorder, options: dict, unused: list[str] | None, com
             "PETSc option(s) %s: read by no solver of this run (misspelt?)",
             ", ".join(f"-{k}" for k in unused),
         )
+
+
+def sweep(
+    scene: Scene | str,
+    source: str | Path,
+    settings: list[str],
+    out: str | Path,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+) -> dict:
+    """Part 2 again for every combination of swept values, from one decoupled run's part 1.
+
+    ``source``: a finished decoupled run of ``scene``; ``settings``: ``key=v1,v2,...`` of the
+    keys part 1 does not depend on (the scapula's material, its CT calibration, the rotation's
+    duration, the stress recipe, part 2's solver:
+    :data:`~shoulder_fem.families.shoulder.reuse.PART2_KEYS`). Every variant is checked before
+    the first is solved; each is a decoupled run folder in ``out`` (a new folder), with
+    ``sweep.json`` and ``sweep.png`` (the scapula's largest von Mises stress, over the bone and
+    over the glenoid region, at every output angle, against the variants).
+
+    Returns:
+        The contents of ``sweep.json``.
+
+    Raises:
+        SceneError: A bad source, a key part 1 depends on, an unknown key or a bad value, or
+            ``out`` exists.
+        RunFailed: A variant's part 2 failed (the variants before it are kept).
+    """
+    from shoulder_fem.families.shoulder import reuse
+    from shoulder_fem.families.shoulder import sweep as sw
+
+    if isinstance(scene, str | Path):
+        scene = load_scene(scene)
+    source, out = Path(source).resolve(), Path(out)
+    level, variants = sw.plan(scene, source, settings)
+    if comm.allreduce(out.exists(), op=MPI.LOR):
+        raise SceneError(f"--out {out}: exists already (a sweep writes a new folder)")
+    comm.Barrier()
+    if comm.rank == 0:
+        out.mkdir(parents=True)
+    comm.Barrier()
+    base = scene.with_values(
+        f"--from {source}", **sw.recorded_values(scene, reuse.read_source(source))
+    )
+    rows = []
+    for i, variant in enumerate(variants):
+        name = sw.folder_name(i, variant)
+        logger.info("sweep: variant %d of %d: %s", i + 1, len(variants), ", ".join(variant))
+        scene_v = base.with_overrides(variant)
+        result = run(scene_v, "decoupled", level, out / name, comm, part1_from=source)
+        rows.append(sw.variant_row(variant, name, result, out / name))
+    data = {
+        "scene": scene.name,
+        "level": level,
+        "from": str(source),
+        "keys": [s.partition("=")[0].strip() for s in settings],
+        "glenoid_region_radius_m": sw.GLENOID_REGION,
+        "variants": rows,
+    }
+    if comm.rank == 0:
+        sw.write_sweep(data, out)
+    comm.Barrier()
+    return data

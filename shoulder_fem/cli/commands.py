@@ -1,4 +1,4 @@
-"""The scene commands: scenes, run, compare, bench.
+"""The scene commands: scenes, run, compare, bench, sweep.
 
 Each takes the parsed arguments and returns the exit status; input errors are raised as
 ``SceneError`` / ``OutputError`` and a failed solve as :class:`SolverFailure` (``main`` turns
@@ -109,6 +109,29 @@ def cmd_run(args) -> int:
         raise SolverFailure(str(err)) from err
     say(_probe_lines(result.data))
     say(f"results: {result.folder}")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    """Part 2 for every combination of the swept values, from one decoupled run's part 1."""
+    from mpi4py import MPI
+
+    from shoulder_fem.api import RunFailed, sweep
+    from shoulder_fem.scene import load_scene
+
+    scene = load_scene(args.scene)
+    try:
+        data = sweep(scene, args.source, args.sets, args.out, MPI.COMM_WORLD)
+    except RunFailed as err:
+        raise SolverFailure(str(err)) from err
+    for row in data["variants"]:
+        values = ", ".join(f"{k}={v}" for k, v in row["values"].items())
+        peak = max(row["von_mises_max_mpa"], default=float("nan"))
+        say(
+            f"{values}: {row['status']}, part 2 CPU {row['part2_cpu_s']:.2f} s "
+            f"(run {row['cpu_s']:.2f} s), largest von Mises {peak:.3f} MPa"
+        )
+    say(f"sweep: {args.out}/sweep.json, sweep.png")
     return 0
 
 

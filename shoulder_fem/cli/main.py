@@ -182,6 +182,30 @@ def build_parser() -> argparse.ArgumentParser:
         "parameters, solver, ranks and code)",
     )
 
+    p = sub.add_parser(
+        "sweep",
+        help="part 2 again for each value of the scapula's material from one decoupled run's "
+        "part 1",
+    )
+    p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    p.add_argument(
+        "--from",
+        dest="source",
+        type=Path,
+        required=True,
+        help="a finished decoupled run's output folder (its part 1 is reused)",
+    )
+    p.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a swept key and its values (repeatable: every combination); only keys part 1 "
+        "does not depend on, e.g. scapula_modulus_factor=0.5,1,2",
+    )
+    p.add_argument("--out", type=Path, required=True, help="a new folder for the sweep")
+
     add_mesh_parser(sub)
     return parser
 
@@ -271,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
             "run": commands.cmd_run,
             "compare": commands.cmd_compare,
             "bench": cmd_bench,
+            "sweep": commands.cmd_sweep,
             "mesh": cmd_mesh,
         }[args.command](args)
     except (SceneError, OutputError, commands.InputFailure) as err:

@@ -36,12 +36,15 @@ class RunContext:
         monitor: CPU time, memory and disk, with named stages.
         fields: the folder for ParaView fields (exists).
         options: PETSc options from the user for the method's solvers, or None.
+        part1_from: A finished decoupled run whose part 1 this run's part 2 takes (a sweep
+            over the bone: :mod:`shoulder_fem.families.shoulder.reuse`), or None.
     """
 
     recorder: Recorder
     monitor: ResourceMonitor
     fields: Path
     options: SolverOptions | None = None
+    part1_from: Path | None = None
 
 
 @dataclass(frozen=True)

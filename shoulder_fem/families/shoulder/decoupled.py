@@ -36,6 +36,7 @@ from shoulder_fem.families.shoulder.model import (
 )
 from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
 from shoulder_fem.families.shoulder.part2 import run_part2
+from shoulder_fem.families.shoulder.reuse import load_part1
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.families.shoulder.twist import rigid_twist
@@ -57,9 +58,17 @@ HUMERUS_TIES = (
 
 
 def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
-    """Method #2: part 1 (rigid bones), then part 2 (scapula, linear, floating frame)."""
+    """Method #2: part 1 (rigid bones), then part 2 (scapula, linear, floating frame).
+
+    With ``run.part1_from`` part 1 is the recorded one of that run (:mod:`.reuse`).
+    """
     layout = spring_layout(model.params)
-    data, transfer = run_part1(model, run, layout)
+    if run.part1_from is not None:
+        data, fields = load_part1(model, run.part1_from)
+        transfer = Transfer(**fields)
+        run.recorder.extra("part1_from", str(run.part1_from))
+    else:
+        data, transfer = run_part1(model, run, layout)
     # part 2 holds the scapula alone: part 1's mesh, spaces and forms go before it starts
     del model.meshes["rigid-bone"]
     release_memory()

@@ -18,6 +18,8 @@ from shoulder_fem.families.shoulder import model as SH
 from shoulder_fem.families.shoulder.compliance import PenaltyShare
 from shoulder_fem.scene import load_scene
 
+pytestmark = pytest.mark.mpi
+
 
 @pytest.fixture(scope="module")
 def joint():

@@ -256,6 +256,7 @@ def sweep(
     """
     from shoulder_fem.families.shoulder import reuse
     from shoulder_fem.families.shoulder import sweep as sw
+    from shoulder_fem.families.shoulder.model import reuse_meshes
 
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
@@ -271,12 +272,13 @@ def sweep(
         f"--from {source}", **sw.recorded_values(scene, reuse.read_source(source))
     )
     rows = []
-    for i, variant in enumerate(variants):
-        name = sw.folder_name(i, variant)
-        logger.info("sweep: variant %d of %d: %s", i + 1, len(variants), ", ".join(variant))
-        scene_v = base.with_overrides(variant)
-        result = run(scene_v, "decoupled", level, out / name, comm, part1_from=source)
-        rows.append(sw.variant_row(variant, name, result, out / name))
+    with reuse_meshes():  # one meshing for all the variants
+        for i, variant in enumerate(variants):
+            name = sw.folder_name(i, variant)
+            logger.info("sweep: variant %d of %d: %s", i + 1, len(variants), ", ".join(variant))
+            scene_v = base.with_overrides(variant)
+            result = run(scene_v, "decoupled", level, out / name, comm, part1_from=source)
+            rows.append(sw.variant_row(variant, name, result, out / name))
     data = {
         "scene": scene.name,
         "level": level,

@@ -137,7 +137,10 @@ def test_shoulder_part2_with_cg_gamg_equals_lu_at_coarse(comm_tmp):
     """The decoupled shoulder at coarse, 0-20 deg: part 2 with CG + GAMG
     (``part2_solver = iterative``) gives LU's nodal von Mises stress at every output angle to
     1e-6 of its maximum (measured 4.9e-9 over 0-60 deg), with real CG iterations (serial and
-    2 ranks)."""
+    2 ranks). Both on the same part 1 (the iterative part 2 from the direct run's, as a sweep
+    takes it): two part-1 runs on 2 ranks may partition the mesh differently and agree only to
+    their Newton tolerance (1e-3 N), which moved the stress by 1e-5 of its maximum (measured
+    once in CI)."""
     from shoulder_fem import load_scene, run
 
     short = ["final_angle=20deg", "output_angle=10deg"]
@@ -146,7 +149,10 @@ def test_shoulder_part2_with_cg_gamg_equals_lu_at_coarse(comm_tmp):
         scene = load_scene("shoulder-internal-rotation").with_overrides(
             [*short, f"part2_solver={solver}"]
         )
-        results[solver] = run(scene, "decoupled", level="coarse", out=comm_tmp / solver)
+        source = comm_tmp / "direct" if solver == "iterative" else None
+        results[solver] = run(
+            scene, "decoupled", level="coarse", out=comm_tmp / solver, part1_from=source
+        )
     lu, cg = results["direct"], results["iterative"]
     assert lu.probes["part2_krylov_iterations"] == lu.probes["part2_iterations"]  # preonly
     assert cg.probes["part2_krylov_iterations"] > 10 * cg.probes["part2_iterations"]

@@ -73,7 +73,9 @@ def test_a_variant_with_the_runs_own_values_reproduces_its_part2(source, comm_tm
     residual = _series(source, "transfer_equilibrium_residual")
     for r in rows:
         mine = _series(out / r["folder"], "transfer_equilibrium_residual")
-        assert np.abs(mine - residual).max() <= 1e-12 and mine.max() <= 1e-8
+        # the same imbalance as the run's own (part 1's Newton stops at |F| < 1e-3 N on loads
+        # of 10-100 N: below 1e-5, as test_shoulder bounds it; 6.4e-8 measured on 2 ranks)
+        assert np.abs(mine - residual).max() <= 1e-12 and mine.max() < 1e-5
     peak = _series(source, "scapula_max_von_mises") * 1e-6
     assert np.allclose(rows[1]["von_mises_max_mpa"], peak, rtol=1e-10, atol=0.0)
     # meshed once: the second variant's mesh stage is a small part of the first's

@@ -254,23 +254,19 @@ def sweep(
             ``out`` exists.
         RunFailed: A variant's part 2 failed (the variants before it are kept).
     """
-    from shoulder_fem.families.shoulder import reuse
     from shoulder_fem.families.shoulder import sweep as sw
     from shoulder_fem.families.shoulder.model import reuse_meshes
 
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
     source, out = Path(source).resolve(), Path(out)
-    level, variants = sw.plan(scene, source, settings)
+    base, level, variants = sw.plan(scene, source, settings)
     if comm.allreduce(out.exists(), op=MPI.LOR):
         raise SceneError(f"--out {out}: exists already (a sweep writes a new folder)")
     comm.Barrier()
     if comm.rank == 0:
         out.mkdir(parents=True)
     comm.Barrier()
-    base = scene.with_values(
-        f"--from {source}", **sw.recorded_values(scene, reuse.read_source(source))
-    )
     rows = []
     with reuse_meshes():  # one meshing for all the variants
         for i, variant in enumerate(variants):

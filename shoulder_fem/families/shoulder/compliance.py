@@ -96,6 +96,8 @@ class PenaltyShare:
         self.penalty = penalty
         self.glenoid = _Layer(u, facet_tags, "glenoid_articular", "glenoid_cartilage_bone")
         self.humeral = _Layer(u, facet_tags, "humeral_articular", "humeral_cartilage_bone")
+        #: the glenoid's articular nodes in the reference geometry, to find its pressure nodes
+        self._glenoid_nodes = cKDTree(self.glenoid.X_a)
 
     def __call__(self, points: np.ndarray, pressure: np.ndarray) -> dict[str, float]:
         """The share at nodal ``pressure`` (Pa) on the glenoid ``points`` (m, reference).
@@ -110,7 +112,7 @@ class PenaltyShare:
         if len(on) == 0 or len(x_g) == 0 or len(x_h) == 0:
             return zero
         # the glenoid's pressure nodes (P1) among its articular nodes (P2), by position
-        g = cKDTree(self.glenoid.X_a).query(points[on])[1]
+        g = self._glenoid_nodes.query(points[on])[1]
         h = cKDTree(x_h).query(x_g[g])[1]
         p = pressure[on]
         w = p / p.sum()

@@ -101,15 +101,13 @@ def _same(a, b) -> bool:
 def load_part1(model: ShoulderModel, folder: Path) -> tuple[dict, dict]:
     """Part 1's outputs and transfer from the run in ``folder``, for this model's part 2.
 
+    ``folder`` is the run's ``part1_from``, which :func:`shoulder_fem.api.run` has checked
+    (:func:`read_source`, :func:`check_source`) before anything was written.
+
     Returns:
         (the stepping's outputs that part 2 and ``shoulder.npz`` use, the fields of the
         :class:`~shoulder_fem.families.shoulder.decoupled.Transfer`).
-
-    Raises:
-        SceneError: As :func:`read_source` and :func:`check_source`.
     """
-    source = read_source(folder)
-    check_source(model.scene, model.level, source, f"--from {folder}")
     sm = model.meshes["rigid-bone"]
     # part 1's reference point of the scapula, as part 1 computed it
     ref = patch_centroid(sm.mesh, sm.facet_tags, S.MARKERS["glenoid_cartilage_bone"].id)

@@ -27,8 +27,11 @@ __all__ = ["folder_name", "plan", "variant_row", "write_sweep"]
 logger = logging.getLogger(__name__)
 
 
-def plan(scene: Scene, source: Path, settings: list[str]) -> tuple[str, list[list[str]]]:
-    """The recorded run's level and every variant's ``key=value`` list (checked, no solve).
+def plan(scene: Scene, source: Path, settings: list[str]) -> tuple[Scene, str, list[list[str]]]:
+    """The recorded run's scene and level, and every variant's ``key=value`` list (checked).
+
+    Nothing is solved: the scene holds the recorded run's values, each variant is a list of
+    ``--set`` assignments on it.
 
     ``settings``: ``key=v1,v2,...`` each; the variants are all their combinations.
 
@@ -66,7 +69,7 @@ def plan(scene: Scene, source: Path, settings: list[str]) -> tuple[str, list[lis
     variants = [list(v) for v in itertools.product(*axes)]
     for v in variants:
         base.with_overrides(v)  # every value checked before anything is solved
-    return level, variants
+    return base, level, variants
 
 
 def recorded_values(scene: Scene, recorded: dict) -> dict:

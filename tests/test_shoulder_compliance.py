@@ -47,6 +47,7 @@ def test_a_rigid_motion_compresses_no_layer(joint):
     u.interpolate(lambda x: R @ x - x + shift)
     for layer in (share.glenoid, share.humeral):
         x_a, comp = layer.compression()
+        # a rigid motion keeps every length: 0 to round-off (mm-sized positions, 1e-12 m)
         assert np.abs(comp).max() < 1e-12
         assert np.allclose(x_a, (R @ layer.X_a.T + shift).T, atol=1e-12)
 
@@ -56,13 +57,17 @@ def test_a_uniform_strain_shortens_each_layer_by_strain_times_thickness(joint, w
     u, share = joint
     layer = getattr(share, which)
     n, t = _normals(layer)
-    # the layers' feet are straight below their nodes: 1-3 mm, as meshed
+    # the layers' feet are straight below their nodes: the segments are about as long as the
+    # layers are thick (1.5 and 2 mm nominal; measured at coarse 0.88-2.94 mm, the glenoid's
+    # thicker towards its rim)
     assert 0.5e-3 < t.min() and t.max() < 3.5e-3
     a = n.mean(axis=0) / np.linalg.norm(n.mean(axis=0))
     e = 1e-4
     u.interpolate(lambda x: -e * np.outer(a, a @ x))
     _, comp = layer.compression()
-    expected = e * t * (n @ a) ** 2  # first order in e
+    # |d| - |(I - e a a^T) d| = e t (n . a)^2 + O(e^2 t): exact on the linear field but for the
+    # relative O(e) = 1e-4 second-order term (the foot's linear interpolation is exact)
+    expected = e * t * (n @ a) ** 2
     assert np.allclose(comp, expected, rtol=1e-3, atol=1e-12)
     assert MPI.COMM_WORLD.allgather(float(comp.sum())) == [float(comp.sum())] * MPI.COMM_WORLD.size
 
@@ -75,6 +80,7 @@ def test_the_share_is_the_overlap_over_the_approach(joint):
     # no layer compressed: the approach is the penalty's overlap alone
     out = share(pts, p)
     assert out["share"] == pytest.approx(1.0, abs=1e-12)
+    # by hand: sum p (p / eps) / sum p, eps = 6e10 Pa/m; the zero-pressure node does not count
     assert out["overlap"] == pytest.approx((1e5**2 + 3e5**2) / 4e5 / 6e10, rel=1e-12)
     # the glenoid layer compressed by e t (n . a)^2: its pressure-weighted mean is the layers' sum
     n, t = _normals(share.glenoid)
@@ -84,6 +90,7 @@ def test_the_share_is_the_overlap_over_the_approach(joint):
     out = share(pts, p)
     c = e * t[:2] * (n[:2] @ a) ** 2
     glenoid = (1e5 * c[0] + 3e5 * c[1]) / 4e5
+    # first order in e = 1e-3: the second-order term is relatively O(e)
     assert out["glenoid_layer"] == pytest.approx(glenoid, rel=2e-3)
     approach = out["overlap"] + out["glenoid_layer"] + out["humeral_layer"]
     assert out["share"] == pytest.approx(out["overlap"] / approach, rel=1e-12)

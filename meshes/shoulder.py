@@ -313,6 +313,22 @@ class ShoulderGeometry:
             [0.0, 1.0, 0.0]
         )
 
+    def neck_plane_cap_angle(self) -> float:
+        """Half angle (rad) of an implant's cap whose margin lies on the anatomical neck plane.
+
+        The anatomical cartilage ends on the plane ``head_radius cos(humeral_cartilage_angle)``
+        from the anatomical centre along the articular axis (the anatomical neck, where a
+        surgeon cuts); an implant of another radius or centre that covers the same cut ends on
+        that plane too: cos(angle) = (head_radius cos(humeral_cartilage_angle) - shift_x) /
+        prosthesis_radius, with shift_x the anatomical centre's offset along the articular axis
+        (:attr:`humeral_shift`). Equal to ``humeral_cartilage_angle`` for the anatomical head.
+        A study of implant shapes sets ``humeral_cartilage_angle`` to it
+        (``benchmarks/head_shape.py``).
+        """
+        plane = self.head_radius * math.cos(self.humeral_cartilage_angle)
+        c = (plane - self.humeral_shift[0] / _MM) / self.articular_radius
+        return math.acos(min(1.0, max(-1.0, c)))
+
     @property
     def joint_gap(self) -> float:
         """Gap between the cartilages at the contact point in the neutral position (m)."""
@@ -367,6 +383,13 @@ class ShoulderGeometry:
                 raise ValueError(
                     f"prosthesis_radius = {mm(self.prosthesis_radius)}: must lie within 25 % of "
                     f"head_radius, [{mm(lo)}, {mm(hi)}] (the tuberosities are anatomical)"
+                )
+            if self.prosthesis_radius > self.head_radius + _FACET_RAISE / _MM + 1e-12:
+                raise ValueError(
+                    f"prosthesis_radius = {mm(self.prosthesis_radius)}: must not exceed "
+                    f"head_radius + {_FACET_RAISE:g} mm = "
+                    f"{mm(self.head_radius + _FACET_RAISE / _MM)}: a larger implant buries the "
+                    "anatomical tuberosity facets (at 26 mm against 24 mm gmsh aborts)"
                 )
             shift = float(np.linalg.norm(self.humeral_shift)) * 1e-3
             if shift > 6e-3:
@@ -600,8 +623,10 @@ def layout(g: ShoulderGeometry) -> _Layout:
                             f"cartilage ({angle / _DEG:.0f} deg from the articular axis, "
                             f"cartilage to {alpha / _DEG:.0f} deg)"
                         )
-        # The metaphysis and shaft must stay below the facet plane (else the muscle would
-        # overlap the neck).
+        # The metaphysis and shaft must stay below the facet plane, 0.5 mm clear of the
+        # muscle's underside (else the muscle would overlap the neck). (1 mm until
+        # 2026-11-27: the anatomical head cleared it by 0.01 mm, implants of 20-23 mm or
+        # 9 mm medial offset missed it by 0.03-0.26 mm; 22 mm and the 9 mm offset mesh.)
         t = np.linspace(_META_START, g.shaft_length * _MM, 120)
         meta_end = _META_START + _META_FRACTION * g.shaft_length * _MM
         radius = np.interp(t, [_META_START, meta_end], [_META_RADIUS * rb, g.shaft_radius * _MM])
@@ -613,7 +638,7 @@ def layout(g: ShoulderGeometry) -> _Layout:
         pts = pts.reshape(-1, 3)
         inside = (np.abs(pts @ e_w) <= 0.5 * big + 3.0) & (np.abs(pts @ e_n) <= 0.5 * small + 3.0)
         reach = np.concatenate([[0.0], (pts @ d)[inside]])
-        if np.max(reach) > rb + _FACET_RAISE - 1.0:
+        if np.max(reach) > rb + _FACET_RAISE - 0.5:
             raise ValueError(
                 f"{muscle}_insertion_length x _width = {big:g} x {small:g} mm: the insertion "
                 "facet is too close to the humeral neck (the metaphysis reaches above it)"

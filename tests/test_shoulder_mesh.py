@@ -311,8 +311,12 @@ def test_volumes_and_areas_survive_xdmf_under_mpi(comm_tmp, geometry):
         ({"infraspinatus_origin_length": 150.0 * MM}, ["infraspinatus_origin_length", "150"]),
         ({"glenoid_height": 60.0 * MM}, ["glenoid_height = 60 mm"]),
         (
+            {"head_shape": "prosthetic", "prosthesis_radius": 25.5 * MM, "glenoid_radius": 25 * MM},
+            ["glenoid_radius = 25 mm", "prosthesis_radius", "= 25.5 mm"],
+        ),
+        (
             {"head_shape": "prosthetic", "prosthesis_radius": 27.0 * MM},
-            ["glenoid_radius = 26.3 mm", "prosthesis_radius", "= 27 mm"],
+            ["prosthesis_radius = 27 mm", "must not exceed head_radius + 1.5 mm = 25.5 mm"],
         ),
         (
             {"head_shape": "prosthetic", "prosthesis_offset_medial": 20.0 * MM},
@@ -395,17 +399,17 @@ def test_every_group_present_at_finer_levels(geometry, level):
 
 
 def test_head_radius_accepts_the_range_its_doc_states():
-    """The scene's head_radius doc states the range the other defaults allow: 24 to 26.2 mm
-    (the hard bounds, 10-40 mm, are wider); 23.9 mm (insertion footprint on the cartilage) and
+    """The scene's head_radius doc states the range the other defaults allow: 23.6 to 26.2 mm
+    (the hard bounds, 10-40 mm, are wider); 23.5 mm (insertion footprint on the cartilage) and
     26.3 mm (= glenoid_radius) are refused, each with the parameter that stops it."""
     from shoulder_fem.meshes import shoulder as S
 
     scene = load_scene("shoulder-internal-rotation")
-    assert "only 24 to 26.2 mm are accepted" in scene.parameters["head_radius"].doc
+    assert "only 23.6 to 26.2 mm are accepted" in scene.parameters["head_radius"].doc
     for value, stop in (
-        ("24mm", None),
+        ("23.6mm", None),
         ("26.2mm", None),
-        ("23.9mm", "subscapularis_insertion"),
+        ("23.5mm", "subscapularis_insertion"),
         ("26.3mm", "glenoid_radius"),
     ):
         geometry = S.geometry_from_values(scene.with_overrides([f"head_radius={value}"]).values())
@@ -414,3 +418,56 @@ def test_head_radius_accepts_the_range_its_doc_states():
         else:
             with pytest.raises(ValueError, match=stop):
                 geometry.validate()
+
+
+def test_neck_plane_cap_angle_by_hand():
+    """An implant's cartilage ends on the anatomical neck plane, 24 cos(70 deg) = 8.209 mm from
+    the anatomical centre along the articular axis: for a 22 mm implant at the anatomical
+    centre cos(a) = 8.209 / 22 (a = 68.09 deg); moved 2 mm medially at 24 mm, the anatomical
+    centre lies 2 mm along the shaft's lateral normal from it, which at the 135 deg neck-shaft
+    angle has the articular axis component cos(45 deg), so cos(a) = (8.209 - 1.414) / 24
+    (73.56 deg); moved posteriorly (normal to the axis) or the anatomical head: 70 deg."""
+    scene = load_scene("shoulder-internal-rotation")
+    deg = np.pi / 180
+
+    def angle(*sets):
+        g = S.geometry_from_values(scene.with_overrides(list(sets)).values())
+        return g.neck_plane_cap_angle() / deg
+
+    plane = 24.0 * np.cos(70 * deg)
+    assert angle() == pytest.approx(70.0, abs=1e-9)
+    implant = "head_shape=prosthetic"
+    assert angle(implant) == pytest.approx(70.0, abs=1e-9)
+    assert angle(implant, "prosthesis_radius=22mm") == pytest.approx(
+        np.arccos(plane / 22.0) / deg, abs=1e-9
+    )
+    assert angle(implant, "prosthesis_offset_medial=9mm") == pytest.approx(
+        np.arccos((plane - 2.0 * np.cos(45 * deg)) / 24.0) / deg, abs=1e-9
+    )
+    assert angle(implant, "prosthesis_offset_posterior=2mm") == pytest.approx(70.0, abs=1e-9)
+
+
+def test_implant_radii_the_doc_states_mesh_and_a_larger_one_is_refused(geometry):
+    """The prosthesis_radius doc: up to head_radius + 1.5 mm (25.6 mm refused, naming the
+    rule), 22 mm meshes with its cartilage ending on the anatomical neck plane: the articular
+    surface is the 22 mm sphere and its nodes reach the cap angle (68.09 deg) and no further."""
+    scene = load_scene("shoulder-internal-rotation")
+    assert "at most head_radius + 1.5 mm" in scene.parameters["prosthesis_radius"].doc
+    too_big = replace(geometry, head_shape="prosthetic", prosthesis_radius=25.6 * MM)
+    with pytest.raises(ValueError, match="prosthesis_radius = 25.6 mm: must not exceed"):
+        too_big.validate()
+    replace(too_big, prosthesis_radius=25.5 * MM).validate()
+    implant = replace(geometry, head_shape="prosthetic", prosthesis_radius=22.0 * MM)
+    cap = implant.neck_plane_cap_angle()
+    assert np.degrees(cap) == pytest.approx(68.09, abs=0.01)
+    implant = replace(implant, humeral_cartilage_angle=cap)
+    comm = MPI.COMM_WORLD
+    sm = S.build_shoulder_mesh(comm, implant, _coarse_sizes(), "deformable")
+    for m in S.VOLUMES:
+        assert comm.allreduce(np.sum(sm.cell_tags.values == m.id)) > 0, m.name
+    p = _gather_points(comm, _facet_points(sm, "humeral_articular"))
+    centre, radius = _sphere_fit(p)
+    assert radius == pytest.approx(22.0 * MM, rel=0.01) and np.linalg.norm(centre) < 0.2 * MM
+    axis = S.layout(implant).rot @ np.array([-1.0, 0.0, 0.0])  # articular axis, scapular frame
+    reach = np.degrees(np.arccos(np.clip(p @ axis / np.linalg.norm(p, axis=1), -1, 1))).max()
+    assert reach == pytest.approx(np.degrees(cap), abs=0.05)

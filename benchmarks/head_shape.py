@@ -7,9 +7,10 @@ sphere of 24 mm, its cartilage to 70 deg) against prosthetic heads (``head_shape
 over the range this glenoid (26.3 mm) and the mesh builder allow: implant radius 22 to 25.5 mm
 (the anatomical head's 24 mm -2/+1.5 mm; a larger implant buries the anatomical tuberosities,
 and 20 mm fails in gmsh) at the anatomical offsets, and the implant centre moved 2 mm medially,
-laterally, anteriorly and posteriorly at 24 mm. Each implant's cartilage ends on the anatomical
-neck plane (:meth:`ShoulderGeometry.neck_plane_cap_angle`: where the surgeon cuts), so a
-smaller head covers a smaller arc.
+1.5 mm laterally (2 mm aborts gmsh 4.8 at ``medium``: an exception inside its parallel surface
+mesher, which no caller can catch), 2 mm anteriorly and posteriorly at 24 mm. Each implant's
+cartilage ends on the anatomical neck plane (:meth:`ShoulderGeometry.neck_plane_cap_angle`:
+where the surgeon cuts), so a smaller head covers a smaller arc.
 
 Every shape runs the decoupled method (with its own part 1, since part 1 sees the head) to
 60 deg; the coupled method runs on ``--check`` shapes (the anatomical head and the smallest
@@ -38,7 +39,7 @@ import matplotlib
 import numpy as np
 
 from shoulder_fem import load_scene, run
-from shoulder_fem.api import RunFailed
+from shoulder_fem.api import Result, RunFailed
 from shoulder_fem.families.shoulder.report.metrics import GLENOID_REGION
 from shoulder_fem.families.shoulder.report.writer import write_report
 from shoulder_fem.io.output import atomic_write_json
@@ -55,11 +56,14 @@ SHAPES = {
     "implant R25": [*IMPLANT, "prosthesis_radius=25mm"],
     "implant R25.5": [*IMPLANT, "prosthesis_radius=25.5mm"],
     "medial +2": [*IMPLANT, "prosthesis_offset_medial=9mm"],
-    "medial -2": [*IMPLANT, "prosthesis_offset_medial=5mm"],
+    "medial -1.5": [*IMPLANT, "prosthesis_offset_medial=5.5mm"],
     "posterior +2": [*IMPLANT, "prosthesis_offset_posterior=2mm"],
     "posterior -2": [*IMPLANT, "prosthesis_offset_posterior=-2mm"],
 }
 MUSCLES = ("subscapularis", "infraspinatus", "supraspinatus")
+#: The figure's first row: before the contact reaches the humeral cartilage's edge in most
+#: shapes (it does from 30-40 deg, issue 20 item 4); the second row is at the last angle.
+EARLY_ANGLE = 30.0
 SERIES = (
     "max_pressure",
     "contact_force",
@@ -79,6 +83,11 @@ def shape_overrides(name: str) -> list[str]:
         angle = geometry_from_values(scene.values()).neck_plane_cap_angle()
         overrides.append(f"humeral_cartilage_angle={math.degrees(angle):.4f}deg")
     return overrides
+
+
+def slug(name: str) -> str:
+    """A shape's name as a folder name."""
+    return name.replace(" ", "_").replace("+", "p").replace("-", "m")
 
 
 def contact_path(folder: Path) -> dict:
@@ -111,11 +120,14 @@ def glenoid_von_mises(folder: Path) -> list[float | None]:
 
 def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
     """One run: its status, counters, cost, series, contact path and glenoid von Mises."""
-    scene = load_scene(SCENE).with_overrides(overrides)
-    try:
-        r = run(scene, method, level=level, out=out)
-    except RunFailed as err:  # the steps before the failure are in the folder
-        r = err.summary
+    if (out / "summary.json").is_file():  # finished in an earlier invocation (--runs)
+        r = Result.load(out)
+    else:
+        scene = load_scene(SCENE).with_overrides(overrides)
+        try:
+            r = run(scene, method, level=level, out=out)
+        except RunFailed as err:  # the steps before the failure are in the folder
+            r = err.summary
     p, stages = r.probes, {s["name"]: s.get("cpu_s") for s in r.stages}
     row = {
         "status": r.status,
@@ -208,30 +220,47 @@ def _shape_panels(axes, data: dict, names: list[str], angle: float) -> None:
         for c, m in enumerate(MUSCLES):
             mv = [_at(r["series"], f"{m}_force", angle) for r in runs]
             axes[2].plot(x[have], mv, marker, color=f"C{c + 4}", label=f"{m}, {method}")
+    margins = [
+        _at(data["shapes"][n]["runs"]["decoupled"]["series"], "humeral_cap_edge_margin", angle)
+        for n in names
+    ]
+    at_edge = sum(m < 1.0 for m in margins)  # deg: the contact on the cartilage's edge
+    where = f"{angle:g} deg (on the cap's edge: {at_edge} of {len(names)} shapes)"
     titles = (
-        f"largest nodal von Mises at {angle:g} deg (MPa)",
-        f"peak glenoid pressure at {angle:g} deg (MPa)",
-        f"muscle forces at {angle:g} deg (N)",
+        f"largest nodal von Mises (MPa), {where}",
+        f"peak glenoid pressure (MPa), {where}",
+        f"muscle forces (N), {angle:g} deg",
     )
     for ax, title in zip(axes, titles, strict=True):
         ax.set_xticks(x, names, rotation=35, ha="right", fontsize=7)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title, fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6)
 
 
 def _path_panel(ax, data: dict, names: list[str]) -> None:
-    """The contact paths on the glenoid (decoupled), with the glenoid's rim."""
-    t = np.linspace(0, 2 * math.pi, 200)
+    """The contact paths on the glenoid (decoupled), zoomed on them."""
     h, w = data["glenoid_height_mm"], data["glenoid_width_mm"]
-    ax.plot(0.5 * w * np.cos(t), 0.5 * h * np.sin(t), "k-", lw=0.8, label="glenoid rim")
+    xs, ys = [], []
     for i, n in enumerate(names):
         path = data["shapes"][n]["runs"]["decoupled"].get("contact_path")
         if path:
+            xs += [v for v in path["anterior_mm"] if np.isfinite(v)]
+            ys += [v for v in path["superior_mm"] if np.isfinite(v)]
             ax.plot(path["anterior_mm"], path["superior_mm"], ".-", color=f"C{i % 10}", label=n)
             ax.plot(path["anterior_mm"][-1:], path["superior_mm"][-1:], "s", color=f"C{i % 10}")
+    zoom = None
+    if xs:  # the paths span a few mm of the 29 x 39 mm glenoid: show them, not the rim
+        pad = 1.0
+        zoom = ((min(xs) - pad, max(xs) + pad), (min(ys) - pad, max(ys) + pad))
     ax.set(xlabel="anterior (mm)", ylabel="superior (mm)", aspect="equal")
-    ax.set_title("contact path on the glenoid, 0 to 60 deg (square: 60 deg)", fontsize=9)
+    if zoom is not None:
+        ax.set(xlim=zoom[0], ylim=zoom[1])
+    ax.set_title(
+        f"contact path on the {w:g} x {h:g} mm glenoid (pressure-weighted centre), "
+        "0 deg to the last angle (square)",
+        fontsize=8,
+    )
     ax.legend(fontsize=6, ncol=2)
     ax.grid(alpha=0.3)
 
@@ -269,11 +298,12 @@ def _cost_panel(ax, data: dict, names: list[str]) -> None:
 def plot(data: dict, path: Path) -> None:
     """Six panels: stresses, pressure, muscle forces, contact path, glenoid stress, cost."""
     names = list(data["shapes"])
-    fig, axes = plt.subplots(2, 3, figsize=(15, 9), layout="constrained")
-    _shape_panels(axes[0], data, names, common_angle(data))
-    _path_panel(axes[1, 0], data, names)
-    _glenoid_panel(axes[1, 1], data, names)
-    _cost_panel(axes[1, 2], data, names)
+    fig, axes = plt.subplots(3, 3, figsize=(15, 13), layout="constrained")
+    _shape_panels(axes[0], data, names, EARLY_ANGLE)
+    _shape_panels(axes[1], data, names, common_angle(data))
+    _path_panel(axes[2, 0], data, names)
+    _glenoid_panel(axes[2, 1], data, names)
+    _cost_panel(axes[2, 2], data, names)
     fig.suptitle(
         f"{SCENE} ({data['level']}): head shape against the scapula's stress; decoupled for "
         "every shape (o), coupled on the checked ones (x)",
@@ -296,6 +326,12 @@ def main() -> None:
     )
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     ap.add_argument("--replot", action="store_true", help="redraw OUT/head_shape.png only")
+    ap.add_argument(
+        "--runs",
+        type=Path,
+        help="the run folders (default: TMPDIR/head-shape-runs-LEVEL); a finished run found "
+        "there is read, not run again, so a study stopped part-way resumes",
+    )
     args = ap.parse_args()
     if args.replot:
         plot(json.loads((args.out / "head_shape.json").read_text()), args.out / "head_shape.png")
@@ -311,25 +347,25 @@ def main() -> None:
         "shapes": {},
     }
     reports = args.out / "head_shape_reports"
-    with tempfile.TemporaryDirectory(prefix="head-shape-") as tmp:
-        for name in args.shapes:
-            overrides = shape_overrides(name)
-            folders = {}
-            runs = {}
-            for method in ("decoupled", "coupled") if name in args.check else ("decoupled",):
-                folders[method] = Path(tmp) / f"{len(data['shapes']):02d}-{method}"
-                runs[method] = one(args.level, overrides, method, folders[method])
-            entry = {"overrides": overrides, "runs": runs}
-            if "coupled" in runs:
-                target = reports / name.replace(" ", "_")
-                shutil.rmtree(target, ignore_errors=True)
-                entry["check"] = check(folders, args.level, target)
-            data["shapes"][name] = entry
-            print(
-                name,
-                {m: (r["status"], r["final_angle_deg"], r["cpu_s"]) for m, r in runs.items()},
-                flush=True,
-            )
+    runs_dir = args.runs or Path(tempfile.gettempdir()) / f"head-shape-runs-{args.level}"
+    for name in args.shapes:
+        overrides = shape_overrides(name)
+        folders = {}
+        runs = {}
+        for method in ("decoupled", "coupled") if name in args.check else ("decoupled",):
+            folders[method] = runs_dir / f"{slug(name)}-{method}"
+            runs[method] = one(args.level, overrides, method, folders[method])
+        entry = {"overrides": overrides, "runs": runs}
+        if "coupled" in runs:
+            target = reports / slug(name)
+            shutil.rmtree(target, ignore_errors=True)
+            entry["check"] = check(folders, args.level, target)
+        data["shapes"][name] = entry
+        print(
+            name,
+            {m: (r["status"], r["final_angle_deg"], r["cpu_s"]) for m, r in runs.items()},
+            flush=True,
+        )
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out / "head_shape.json", data)
     plot(data, args.out / "head_shape.png")

@@ -120,10 +120,11 @@ def glenoid_von_mises(folder: Path) -> list[float | None]:
 
 def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
     """One run: its status, counters, cost, series, contact path and glenoid von Mises."""
+    scene = load_scene(SCENE).with_overrides(overrides)
     if (out / "summary.json").is_file():  # finished in an earlier invocation (--runs)
         r = Result.load(out)
+        _check_reused(r, scene, level, method)
     else:
-        scene = load_scene(SCENE).with_overrides(overrides)
         try:
             r = run(scene, method, level=level, out=out)
         except RunFailed as err:  # the steps before the failure are in the folder
@@ -150,6 +151,25 @@ def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
         row["contact_path"] = contact_path(out)
         row["glenoid_von_mises_mpa"] = glenoid_von_mises(out)
     return row
+
+
+def _check_reused(r: Result, scene, level: str, method: str) -> None:
+    """A reused run folder must be this shape's run: same method, level and parameters."""
+    wanted = scene.values()
+    recorded = r.parameters
+    differ = [
+        k
+        for k, v in wanted.items()
+        if k in recorded
+        and isinstance(v, float)
+        and not math.isclose(float(recorded[k]), v, rel_tol=1e-9, abs_tol=1e-12)
+    ]
+    if r.method != method or r.level != level or differ:
+        raise SystemExit(
+            f"{r.folder}: holds a {r.method} run at {r.level} (wanted: {method} at {level}; "
+            f"parameters that differ: {', '.join(differ) or 'none'}); remove it or choose "
+            "another --runs folder"
+        )
 
 
 def check(runs: dict, level: str, out: Path) -> dict:

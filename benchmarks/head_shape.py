@@ -42,6 +42,7 @@ from shoulder_fem import load_scene, run
 from shoulder_fem.api import Result, RunFailed
 from shoulder_fem.families.shoulder.report.metrics import GLENOID_REGION
 from shoulder_fem.families.shoulder.report.writer import write_report
+from shoulder_fem.families.shoulder.sweep import glenoid_von_mises
 from shoulder_fem.io.output import atomic_write_json
 from shoulder_fem.io.plots import plt, save_figure
 from shoulder_fem.meshes.shoulder import geometry_from_values
@@ -108,14 +109,6 @@ def contact_path(folder: Path) -> dict:
         out["anterior_mm"].append(float(c @ ant) * 1e3)
         out["superior_mm"].append(float(c @ sup) * 1e3)
     return out
-
-
-def glenoid_von_mises(folder: Path) -> list[float | None]:
-    """Largest nodal von Mises stress (MPa) within GLENOID_REGION of the glenoid's centre."""
-    with np.load(folder / "shoulder.npz") as a:
-        X, series, centre = a["scapula_points"], a["scapula_von_mises_series"], a["glenoid_centre"]
-    near = np.linalg.norm(X - centre, axis=1) <= GLENOID_REGION
-    return [float(v[near].max()) * 1e-6 if near.any() else None for v in series]
 
 
 def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
@@ -196,12 +189,8 @@ def check(runs: dict, level: str, out: Path) -> dict:
 def _at(series: dict, key: str, angle: float, scale: float = 1.0) -> float:
     """A series' value at ``angle`` (NaN if the run did not reach it)."""
     s = series.get(key)
-    if not s:
-        return math.nan
-    for x, y in zip(s["x"], s["y"], strict=True):
-        if abs(x - angle) < 1e-6 and y is not None:
-            return y * scale
-    return math.nan
+    i = _index(s["x"], angle) if s else None
+    return math.nan if i is None or s["y"][i] is None else s["y"][i] * scale
 
 
 def _index(angles: list[float], angle: float) -> int | None:
@@ -316,7 +305,8 @@ def _cost_panel(ax, data: dict, names: list[str]) -> None:
 
 
 def plot(data: dict, path: Path) -> None:
-    """Six panels: stresses, pressure, muscle forces, contact path, glenoid stress, cost."""
+    """Nine panels: stresses, pressure and muscle forces against the shape at EARLY_ANGLE and at
+    the last angle every shape reached; the contact paths, the glenoid stress, the cost."""
     names = list(data["shapes"])
     fig, axes = plt.subplots(3, 3, figsize=(15, 13), layout="constrained")
     _shape_panels(axes[0], data, names, EARLY_ANGLE)

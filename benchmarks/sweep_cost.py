@@ -45,6 +45,14 @@ def _own_value_error(source: Path, variant: Path) -> float:
     return float(np.abs(mine[:, index] - ref).max() / ref.max())
 
 
+def _same(recorded, value: str) -> bool:
+    """Whether a swept value (text, SI) is the recorded run's (a number or a text)."""
+    try:
+        return float(recorded) == float(value)
+    except (TypeError, ValueError):
+        return str(recorded) == value
+
+
 def measure(level: str, source: Path | None, settings: list[str], work: Path) -> dict:
     """Part 1 once (unless ``source``), then the sweep; the figures of both."""
     if source is None:
@@ -57,12 +65,7 @@ def measure(level: str, source: Path | None, settings: list[str], work: Path) ->
     recorded = summary["parameters"]
     for row in data["variants"]:
         row["part2_fraction_of_part1"] = row["part2_cpu_s"] / part1 if part1 else None
-        own = all(str(recorded.get(k)) == v for k, v in row["values"].items())
-        try:  # the run's own value: its part 2 again
-            own = own or all(float(recorded.get(k)) == float(v) for k, v in row["values"].items())
-        except (TypeError, ValueError):
-            pass
-        if own:
+        if all(_same(recorded.get(k), v) for k, v in row["values"].items()):  # its own values
             row["own_value_von_mises_error"] = _own_value_error(
                 source, work / "sweep" / row["folder"]
             )

@@ -22,7 +22,7 @@ from shoulder_fem.families.shoulder.report.metrics import GLENOID_REGION
 from shoulder_fem.families.shoulder.reuse import PART2_KEYS, check_source, read_source
 from shoulder_fem.scene import Scene, SceneError
 
-__all__ = ["folder_name", "plan", "variant_row", "write_sweep"]
+__all__ = ["folder_name", "glenoid_von_mises", "plan", "variant_row", "write_sweep"]
 
 logger = logging.getLogger(__name__)
 
@@ -92,14 +92,23 @@ def write_sweep(data: dict, out: Path) -> None:
     _plot(data, out / "sweep.png")
 
 
+def glenoid_von_mises(folder: Path) -> list[float | None]:
+    """A run's largest nodal von Mises stress (MPa) near the glenoid, at every output angle.
+
+    Within :data:`GLENOID_REGION` of the glenoid's centre, from the run's ``shoulder.npz``;
+    None where no node lies there.
+    """
+    with np.load(folder / "shoulder.npz") as res:
+        X, series = res["scapula_points"], res["scapula_von_mises_series"]
+        near = np.linalg.norm(X - res["glenoid_centre"], axis=1) <= GLENOID_REGION
+    return [float(v[near].max()) * 1e-6 if near.any() else None for v in series]
+
+
 def variant_row(variant: list[str], name: str, result, folder: Path) -> dict:
     """One variant's values, cost and von Mises maxima (MPa) at every output angle."""
     stages = {s["name"]: s for s in result.stages}
     vm = result.series["scapula_max_von_mises"]
-    with np.load(folder / "shoulder.npz") as res:
-        X, series = res["scapula_points"], res["scapula_von_mises_series"]
-        near = np.linalg.norm(X - res["glenoid_centre"], axis=1) <= GLENOID_REGION
-        glenoid = [float(v[near].max()) * 1e-6 if near.any() else None for v in series]
+    glenoid = glenoid_von_mises(folder)
     return {
         "values": dict(s.split("=", 1) for s in variant),
         "folder": name,

@@ -151,6 +151,72 @@ def test_tangent_is_exact_taylor_test():
     system.destroy()
 
 
+def _plate_on_block(offset: np.ndarray | None):
+    """The small block under a plate held by two springs and a moment; the tied nodes and the
+    springs' plate ends offset by ``offset`` (m, plate frame) when given: (system, plate)."""
+    u, residual, surfaces = small_block()
+    plate = RigidBody("plate", (0, 0, 0.04), moment=[2e-3, -1e-3, 3e-3])
+    springs = [
+        Spring("a", "plate", (0.005, 0, 0.04), GROUND, (0.05, 0.01, 0.06), 400.0),
+        Spring("b", "plate", (-0.005, 0.002, 0.04), GROUND, (-0.04, 0.0, 0.07), 300.0),
+    ]
+    system = RigidSystem(
+        [plate],
+        springs,
+        u=u,
+        residual=residual,
+        surfaces=surfaces,
+        ties=[Tie("plate", "top")],
+        fixed=["base"],
+        options={"snes_rtol": 1e-12, "snes_atol": 1e-13, "snes_max_it": 30},
+    )
+    if offset is not None:
+        o = np.asarray(offset, dtype=float)
+        system.set_tie_offsets("plate", lambda X: np.tile(o, (len(X), 1)), {"a": o, "b": o})
+    return system, plate
+
+
+def test_tie_offsets_move_the_surface_in_the_body_frame():
+    """A body whose tied nodes and spring ends are all offset by the same o (its frame) is the
+    same body moved by o: the offset system's solution (t, R) and the plain one's (t', R')
+    satisfy R = R', t' = t + R o, with the same displacement field (the applied load is a
+    couple, which does not care where the body's reference point is)."""
+    o = np.array([3e-4, -2e-4, 1e-4])
+    system, plate = _plate_on_block(o)
+    system.move("plate", [0, 0, 0], rotation_about([0.0, 0.3, 1.0], 0.05))
+    system.solve("offset")
+    t, R, u = plate.translation.copy(), plate.rotation.copy(), system.u.x.array.copy()
+    system.destroy()
+    system, plate = _plate_on_block(None)
+    system.move("plate", [0, 0, 0], rotation_about([0.0, 0.3, 1.0], 0.05))
+    system.solve("plain")
+    assert np.linalg.norm(log_so3(plate.rotation @ R.T)) < 1e-9
+    assert np.allclose(plate.translation, t + R @ o, rtol=0, atol=1e-11)
+    assert np.abs(system.u.x.array - u).max() < 1e-10
+    assert np.linalg.norm(R @ o) > 1e-4  # the two motions differ by much more than that
+    system.destroy()
+
+
+def test_tangent_is_exact_with_tie_offsets():
+    """Taylor test with different random offsets per tied node (and per spring end) at a turned
+    plate: the prolongation and the tie's geometric term use the offset points (rate 2)."""
+    system, plate = _plate_on_block(None)
+    rng = np.random.default_rng(3 + MPI.COMM_WORLD.rank)
+    system.set_tie_offsets(
+        "plate",
+        lambda X: 1e-3 * np.sin(400 * X + 1.0),  # the same at a node shared by two ranks
+        {"a": [1e-3, 0, -5e-4]},
+    )
+    system.move("plate", [1e-4, -2e-4, 3e-4], rotation_about([0.2, 0.1, 1.0], 0.6))
+    remainders, rates = taylor_rates(system, rng, 1e-4)
+    assert np.all(rates > 1.9), (remainders, rates)
+    with pytest.raises(ValueError, match="bad spring offset 'c'"):
+        system.set_tie_offsets("plate", None, {"c": [0, 0, 0]})
+    with pytest.raises(ValueError, match="one 3-vector"):
+        system.set_tie_offsets("plate", lambda X: np.zeros((len(X), 2)))
+    system.destroy()
+
+
 def _linear_block_with_plate(load: float, linear_ties: bool):
     """Linear elastic block, base fixed, a plate tied to the top under a force and a moment
     (scaled by ``load``): (system, plate)."""

@@ -162,7 +162,8 @@ class DeformablePart:
     ) -> None:
         """Set ``u``: ``free`` on the free nodes, zero on fixed ones, tied ones from their body.
 
-        A tied node follows ``t + R (X - X_ref) - (X - X_ref)``; with ``linear_ties``
+        A tied node follows ``t + R (X + o - X_ref) - (X - X_ref)`` (o its offset in the body's
+        frame, :meth:`RigidSystem.set_tie_offsets`, zero by default); with ``linear_ties``
         ``t + φ × (X - X_ref)`` (φ the body's total rotation vector, rad). Ghosts updated.
         """
         lay = self.layout
@@ -174,8 +175,9 @@ class DeformablePart:
             d = lay.X[nodes] - body.reference_point
             if linear_ties:
                 u[nodes] = body.translation + np.cross(phi[b], d)
-            else:
-                u[nodes] = body.translation + d @ body.rotation.T - d
+            else:  # at the body point X + offset (layout.X_tied)
+                r = lay.X_tied[nodes] - body.reference_point
+                u[nodes] = body.translation + r @ body.rotation.T - d
         self.u.x.scatter_forward()
 
     def reaction(self, surface: str, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:

@@ -133,6 +133,10 @@ class ReducedLayout:
         self.fixed_owned: dict[str, np.ndarray] = {}
         #: Reference coordinates of the local nodes (m), (n_all, 3); ``None`` without FE.
         self.X: np.ndarray | None = None
+        #: The body points the local nodes are tied at (m), (n_all, 3): ``X`` plus each tied
+        #: node's offset in its body's frame (:meth:`set_offsets`); ``X`` itself while no node
+        #: has one.
+        self.X_tied: np.ndarray | None = None
         self.n_owned = 0
         self.free_nodes = np.zeros(0, dtype=np.int64)
         n_free_local = 0
@@ -163,6 +167,7 @@ class ReducedLayout:
         self.n_owned = imap.size_local
         n_all = self.n_owned + imap.num_ghosts
         self.X = V.tabulate_dof_coordinates()[:n_all]
+        self.X_tied = self.X
 
         def nodes_of(surface: str) -> np.ndarray:
             tags, tag = surfaces[surface]
@@ -200,6 +205,16 @@ class ReducedLayout:
         #: First global FE row of this rank and the number of FE rows (3 per node).
         self.row0 = imap.local_range[0] * 3
         self.n_rows_global = imap.size_global * 3
+
+    def set_offsets(self, b: int, offsets: np.ndarray | None) -> None:
+        """Tie body ``b``'s local nodes (``tied_nodes[b]``) at ``X + offsets`` (m, (n, 3)).
+
+        ``None``: at ``X`` again.
+        """
+        nodes = self.tied_nodes[b]
+        if self.X_tied is self.X:
+            self.X_tied = self.X.copy()
+        self.X_tied[nodes] = self.X[nodes] + (0.0 if offsets is None else offsets)
 
     def rigid_cols(self, b: int) -> np.ndarray:
         """Global reduced indices of body ``b``'s six DOFs (t, φ)."""
@@ -280,7 +295,7 @@ class ReducedLayout:
                 jl, r = np.eye(3), self.X[owned] - body.reference_point
             else:
                 jl = left_jacobian(phi[b])
-                r = (self.X[owned] - body.reference_point) @ body.rotation.T
+                r = (self.X_tied[owned] - body.reference_point) @ body.rotation.T
             # every tied row has the body's 6 columns: one dense (3 n) x 6 block, one call
             block = np.empty((len(owned), 3, 6))
             block[:, :, :3] = np.eye(3)

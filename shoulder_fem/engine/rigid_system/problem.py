@@ -293,6 +293,10 @@ class ReducedProblem:
             self.R0[b] = body.rotation.copy()
             self.phi[b] = 0.0
 
+    def invalidate(self) -> None:
+        """The residual last assembled is not that of the state any more (e.g. new offsets)."""
+        self._f_at = None
+
     def set_rotation(self, b: int, R: np.ndarray) -> None:
         """Body b's rotation is ``R`` now: R₀ ← R, φ ← 0."""
         self.R0[b], self.phi[b] = R.copy(), 0.0
@@ -307,7 +311,7 @@ class ReducedProblem:
     def tie_loads(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per body Σ f_i (N), Σ r_i × f_i (N·m), Σ hat(f_i) hat(r_i) of the assembled F."""
         F = None if self.fe is None else self.fe.F
-        return tie_loads(self.bodies, self.layout.X, self.layout.tied_owned, F, self.comm)
+        return tie_loads(self.bodies, self.layout.X_tied, self.layout.tied_owned, F, self.comm)
 
     def external_loads(self) -> np.ndarray:
         """Per body, the total external force F (N) and moment about G (N·m) (collective).

@@ -129,7 +129,8 @@ def tie_loads(
 
     Args:
         bodies: The rigid bodies (current rotations).
-        X: Reference coordinates of the local FE nodes (m); ``None`` without an FE part.
+        X: The body points the local FE nodes are tied at (m; their reference coordinates
+            unless offset); ``None`` without an FE part.
         tied_owned: Per body, the owned local nodes tied to it.
         F: The assembled FE residual (N) at the nodes, f_i; ``None`` without an FE part.
         comm: Communicator of the sums.

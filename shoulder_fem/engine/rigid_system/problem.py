@@ -293,10 +293,6 @@ class ReducedProblem:
             self.R0[b] = body.rotation.copy()
             self.phi[b] = 0.0
 
-    def invalidate(self) -> None:
-        """The residual last assembled is not that of the state any more (e.g. new offsets)."""
-        self._f_at = None
-
     def set_rotation(self, b: int, R: np.ndarray) -> None:
         """Body b's rotation is ``R`` now: R₀ ← R, φ ← 0."""
         self.R0[b], self.phi[b] = R.copy(), 0.0

@@ -19,6 +19,7 @@ from mpi4py import MPI
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.engine.springs import GROUND, Spring
 from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.shoulder.correction import NodalValues, Offsets, adopt, correct_part1
 from shoulder_fem.families.shoulder.geometry import gather_rows, patch_centroid, surface_centroid
 from shoulder_fem.families.shoulder.interactions import (
     joint_contact,
@@ -34,13 +35,14 @@ from shoulder_fem.families.shoulder.model import (
     displacement,
     scapula_at,
 )
-from shoulder_fem.families.shoulder.outputs import save_npz, save_results, unknowns
+from shoulder_fem.families.shoulder.outputs import UNCORRECTED, save_npz, save_results, unknowns
 from shoulder_fem.families.shoulder.part2 import run_part2
 from shoulder_fem.families.shoulder.reuse import load_part1
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.families.shoulder.twist import rigid_twist
 from shoulder_fem.io.resources import release_memory
+from shoulder_fem.io.results import Recorder
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["HUMERUS_TIES", "SCAPULA_LOAD_SURFACES", "Transfer", "run_decoupled", "run_part1"]
@@ -67,6 +69,8 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
         data, fields = load_part1(model, run.part1_from)
         transfer = Transfer(**fields)
         run.recorder.extra("part1_from", str(run.part1_from))
+    elif model.params.part1_bones == "compliant":
+        data, transfer = _compliant_part1(model, run, layout)
     else:
         data, transfer = run_part1(model, run, layout)
     # part 2 holds the scapula alone: part 1's mesh, spaces and forms go before it starts
@@ -79,6 +83,50 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
     with run.monitor.stage("part2"):
         stress_vm, mesh2, ft2 = run_part2(model, run, transfer, layout, data)
     save_results(model, data, stress_vm, mesh2, ft2, run.fields.parent / "shoulder.npz")
+
+
+def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
+    """Part 1 that sees the scapula's compliance (:mod:`.correction`); (data, transfer)."""
+    part1 = Part1(model, run, layout, keep=True)
+    try:
+        data, transfer = part1.run()
+        X_tied, _ = part1.system.tied_positions("scapula")
+        offsets: list[Offsets] = []
+        probe: list[NodalValues] = []
+
+        def collect(k: int, part2) -> None:
+            if not probe:
+                probe.append(NodalValues(part2.V, X_tied, "part 1's scapula nodes"))
+            springs = {b.name: b.translation.copy() for b in part2.bodies}
+            offsets.append(Offsets(probe[0](part2.u), springs))
+
+        scratch = Recorder(run.recorder.comm, run.recorder.folder)
+        rigid: dict = {}
+        with run.monitor.stage("part2_uncorrected"):
+            run_part2(
+                model,
+                run,
+                transfer,
+                layout,
+                rigid,
+                recorder=scratch,
+                write_fields=False,
+                on_step=collect,
+            )
+        adopt(run.recorder, scratch, replace_plain=False)
+        with run.monitor.stage("part1_correction"):
+            corrected, transfer, stop = correct_part1(part1, offsets, run)
+    finally:
+        part1.destroy()
+    if stop is not None:
+        run.recorder.set_status("incomplete", stop)
+        data["stop"] = stop
+    data[UNCORRECTED + "von_mises_series"] = rigid.get("von_mises_series", [])
+    for key in ("angles_deg", "glenoid_pressure", "glenoid_shear"):
+        data[UNCORRECTED + key] = data[key]
+    data.update(corrected)
+    transfer.save(run.fields.parent / "transfer.npz", model.comm)
+    return data, transfer
 
 
 def _to_level(model: ShoulderModel, run: RunContext, transfer: Transfer, level: str) -> Transfer:
@@ -110,6 +158,11 @@ class Transfer:
         translation: Per angle, the scapula's translation (m).
         rotation: Per angle, the scapula's rotation (3 x 3).
         humerus_rotation: Per angle, the humerus's rotation (3 x 3).
+        spring_offsets: Per angle, where the compliant correction attached the scapula's
+            springs ({name: offset} m, scapula frame; :mod:`.correction`); empty: at their
+            points.
+        point_offsets: Per angle, where the compliant correction had moved the loaded nodes
+            ((n, 3) m, scapula frame); empty: at ``points``.
     """
 
     reference: np.ndarray
@@ -119,6 +172,8 @@ class Transfer:
     translation: list = field(default_factory=list)
     rotation: list = field(default_factory=list)
     humerus_rotation: list = field(default_factory=list)
+    spring_offsets: list = field(default_factory=list)
+    point_offsets: list = field(default_factory=list)
 
     def save(self, path: Path, comm: MPI.Comm) -> None:
         """Write ``transfer.npz`` (collective)."""
@@ -212,63 +267,101 @@ def part1_ties(ft, cell_tags, params: ShoulderParameters) -> tuple[list[Tie], di
 PART1_OPTIONS = {"mat_mumps_icntl_7": 6, "mat_mumps_icntl_8": 0}
 
 
+class Part1:
+    """Part 1: rigid bones, deformable soft tissues (collective).
+
+    :meth:`run` steps through the output angles and writes ``transfer.npz``; with ``keep`` the
+    system stays alive after it, with the converged state of every output angle, for the
+    compliant correction (:mod:`.correction`); :meth:`destroy` frees it.
+    """
+
+    def __init__(self, model: ShoulderModel, run: RunContext, layout: list[dict], keep: bool):
+        self.model, self.run_context, self.keep = model, run, keep
+        p = model.params
+        sm = model.meshes["rigid-bone"]
+        d = displacement(model, "rigid-bone")
+        mesh, ct_, ft, V, u, w, dx = d.mesh, d.cell_tags, d.facet_tags, d.V, d.u, d.w, d.dx
+        self.comm = mesh.comm
+        F, self.volumetric = soft_tissue_residual(u, w, dx, ct_, p)
+        self.contact = contact = joint_contact(V, u, ft, p)
+        humerus = RigidBody("humerus", np.zeros(3))
+        scapula_ref = patch_centroid(mesh, ft, S.MARKERS["glenoid_cartilage_bone"].id)
+        scapula = RigidBody("scapula", scapula_ref)
+        origin = patch_centroid(mesh, ft, S.MARKERS["subscapularis_origin"].id)
+        actuator = RigidBody("actuator", origin, prescribed=True)
+        self.springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
+        ties, tied = part1_ties(ft, ct_, p)
+        check = SoftTissueCheck(u, ct_)
+        self.system = system = RigidSystem(
+            [humerus, scapula, actuator],
+            self.springs,
+            u=u,
+            residual=F,
+            surfaces=tied,
+            ties=ties,
+            name="shoulder_part1",
+            options=SNES_OPTIONS | PART1_OPTIONS | dict(run.options or {}),
+            form_compiler_params=p.quadrature(),
+            contact=contact,
+            admissible=check,
+            volumetric=self.volumetric,
+        )
+        self.transfer = Transfer(reference=scapula_ref)
+        self.record = _TransferRecorder(V, ft, system, (scapula, humerus), self.transfer)
+        self.probe = Probe(u, ct_, ft, contact, p, self.volumetric)
+        #: Per output angle: the system's snapshot, the angle's target (rad), the
+        #: incompressible tissue's multipliers (or None); with ``keep`` only.
+        self.states: list[tuple] = []
+        self.job = Stepping(
+            system=system,
+            contact=contact,
+            actuator=actuator,
+            rotation=lambda: humerus.rotation,
+            measure=rigid_twist(humerus, 0, model.shaft_axis),
+            probe=self.probe,
+            u=u,
+            label="part1",
+            check=check,
+            stage="part1",
+            on_output=self._on_output,
+        )
+
+    def _on_output(self, target: float) -> None:
+        self.record(target)
+        if self.keep:
+            vol = self.volumetric
+            multipliers = None if vol is None else vol.multiplier.copy()
+            state = (self.system.snapshot(), self.system.control.target, multipliers)
+            self.states.append(state)
+
+    def run(self) -> tuple[dict, Transfer]:
+        """Step through the output angles (collective); writes ``transfer.npz``.
+
+        Returns:
+            The stepping's outputs (:func:`stepping.run_steps`) and the transfer to part 2.
+        """
+        run = self.run_context
+        data = run_steps(self.model, run, self.job)
+        run.recorder.extra("dofs_part1", unknowns(self.system))
+        self.transfer.points = gather_rows(self.record.X_load, self.comm)
+        self.transfer.save(run.fields.parent / "transfer.npz", self.comm)
+        if not self.keep:
+            self.destroy()
+        return data, self.transfer
+
+    def destroy(self) -> None:
+        """Free the solver and the probes."""
+        self.probe.destroy()
+        if self.volumetric is not None:
+            self.volumetric.destroy()
+        self.system.destroy()
+        self.states.clear()
+
+
 def run_part1(model: ShoulderModel, run: RunContext, layout: list[dict]) -> tuple[dict, Transfer]:
     """Part 1: rigid bones, deformable soft tissues (collective); writes ``transfer.npz``.
 
     Returns:
         The stepping's outputs (:func:`stepping.run_steps`) and the transfer to part 2.
     """
-    p = model.params
-    sm = model.meshes["rigid-bone"]
-    d = displacement(model, "rigid-bone")
-    mesh, ct_, ft, V, u, w, dx = d.mesh, d.cell_tags, d.facet_tags, d.V, d.u, d.w, d.dx
-    comm = mesh.comm
-    F, volumetric = soft_tissue_residual(u, w, dx, ct_, p)
-    contact = joint_contact(V, u, ft, p)
-    humerus = RigidBody("humerus", np.zeros(3))
-    scapula_ref = patch_centroid(mesh, ft, S.MARKERS["glenoid_cartilage_bone"].id)
-    scapula = RigidBody("scapula", scapula_ref)
-    origin = patch_centroid(mesh, ft, S.MARKERS["subscapularis_origin"].id)
-    actuator = RigidBody("actuator", origin, prescribed=True)
-    springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
-    ties, tied = part1_ties(ft, ct_, p)
-    check = SoftTissueCheck(u, ct_)
-    system = RigidSystem(
-        [humerus, scapula, actuator],
-        springs,
-        u=u,
-        residual=F,
-        surfaces=tied,
-        ties=ties,
-        name="shoulder_part1",
-        options=SNES_OPTIONS | PART1_OPTIONS | dict(run.options or {}),
-        form_compiler_params=p.quadrature(),
-        contact=contact,
-        admissible=check,
-        volumetric=volumetric,
-    )
-    transfer = Transfer(reference=scapula_ref)
-    record = _TransferRecorder(V, ft, system, (scapula, humerus), transfer)
-    probe = Probe(u, ct_, ft, contact, p, volumetric)
-    job = Stepping(
-        system=system,
-        contact=contact,
-        actuator=actuator,
-        rotation=lambda: humerus.rotation,
-        measure=rigid_twist(humerus, 0, model.shaft_axis),
-        probe=probe,
-        u=u,
-        label="part1",
-        check=check,
-        stage="part1",
-        on_output=record,
-    )
-    data = run_steps(model, run, job)
-    run.recorder.extra("dofs_part1", unknowns(system))
-    transfer.points = gather_rows(record.X_load, comm)
-    probe.destroy()
-    if volumetric is not None:
-        volumetric.destroy()
-    system.destroy()
-    transfer.save(run.fields.parent / "transfer.npz", comm)
-    return data, transfer
+    return Part1(model, run, layout, keep=False).run()

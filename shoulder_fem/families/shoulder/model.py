@@ -76,6 +76,7 @@ class ShoulderParameters:
     nodal_stress: str
     part2_solver: str
     part2_level: str
+    part1_bones: str
     ct_image: str
     ct_density_intercept: float
     ct_density_slope: float
@@ -152,6 +153,20 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     """Mesh the joint for ``method`` (collective): all bodies, or soft tissues + the scapula."""
     values = scene.values()
     params = ShoulderParameters.from_values(values)
+    if (
+        method == "decoupled"
+        and params.part1_bones == "compliant"
+        and params.part2_level
+        not in (
+            "",
+            level,
+        )
+    ):
+        raise SceneError(
+            f"{scene.where('part1_bones')}: part1_bones = compliant needs part 2 on part 1's "
+            f"mesh (it moves part 1's scapula nodes by part 2's displacement there), but "
+            f"part2_level = {params.part2_level!r} differs from the level {level!r}"
+        )
     geometry = S.geometry_from_values(values)
     sizes = scene.level(level)
     variants = ("deformable",) if method == "coupled" else ("rigid-bone", "scapula")

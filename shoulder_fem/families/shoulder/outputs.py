@@ -24,6 +24,10 @@ from shoulder_fem.io.output import atomic_savez
 from shoulder_fem.io.results import Recorder
 from shoulder_fem.meshes import shoulder as S
 
+#: Prefix of the rigid (paper's) decoupling's series, probes and arrays in the results of a
+#: run with ``part1_bones = compliant`` (:mod:`.correction`), which replaces the plain ones.
+UNCORRECTED = "uncorrected_"
+
 __all__ = [
     "record_muscle_bone",
     "record_time_split",
@@ -172,6 +176,14 @@ def save_results(
         "section_z": float(section),
         "final_angle_deg": float(data["final_angle_deg"]),
     }
+    if UNCORRECTED + "von_mises_series" in data:  # part1_bones = compliant (:mod:`.correction`)
+        older = data[UNCORRECTED + "von_mises_series"]
+        for key in ("angles_deg", "glenoid_pressure", "glenoid_shear"):
+            arrays[UNCORRECTED + key] = np.asarray(data[UNCORRECTED + key], dtype=float)
+        arrays[UNCORRECTED + "von_mises_angles_deg"] = np.array([a for a, _ in older], float)
+        arrays[UNCORRECTED + "scapula_von_mises_series"] = np.array(
+            [np.asarray(v)[order] for _, v in older], dtype=float
+        ).reshape(len(older), len(cell_points))
     for key, value in data.get("arrays", {}).items():
         arrays[key] = value
     save_npz(path, arrays, comm)

@@ -9,6 +9,7 @@ serves every angle (chord iterations; only the springs' geometric terms are nonl
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import dolfinx
@@ -33,6 +34,7 @@ from shoulder_fem.families.shoulder.outputs import record_time_split, record_von
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.io.fields import FieldWriter
+from shoulder_fem.io.results import Recorder
 from shoulder_fem.meshes import shoulder as S
 
 if TYPE_CHECKING:
@@ -170,10 +172,16 @@ class FrameInertia:
             [self.comm.allreduce(dolfinx.fem.assemble_scalar(g), op=MPI.SUM) for g in forms]
         )
 
-    def relieve(self) -> np.ndarray:
-        """Set the relief that cancels the frame inertia's resultant; returns that (F, M)."""
+    def relieve(self, couple: np.ndarray | None = None) -> np.ndarray:
+        """Set the relief that cancels the frame inertia's resultant; returns that (F, M).
+
+        ``couple`` (N m, floating frame): a couple that the relief also applies to the body.
+        """
         resultant = self._assemble(self.inertia_forms)
-        relief = np.linalg.solve(self.relief_matrix, -resultant)
+        target = -resultant
+        if couple is not None:  # the relief's inertia resultant is minus the load it applies
+            target[3:] -= couple
+        relief = np.linalg.solve(self.relief_matrix, target)
         self.relief_a.value[:], self.relief_alpha.value[:] = relief[:3], relief[3:]
         return resultant
 
@@ -219,13 +227,20 @@ class _Part2:
     """The scapula's floating-frame problem over part 1's output angles (collective)."""
 
     def __init__(
-        self, model: ShoulderModel, run: RunContext, transfer: Transfer, layout: list[dict]
+        self,
+        model: ShoulderModel,
+        run: RunContext,
+        transfer: Transfer,
+        layout: list[dict],
+        recorder: Recorder | None = None,
+        write_fields: bool = True,
     ):
         p = model.params
         sm = model.meshes["scapula"]
         self.mesh, ct_, self.ft = mesh, ct_, ft = sm.mesh, sm.cell_tags, sm.facet_tags
         self.comm = mesh.comm
-        self.recorder, self.transfer, self.ref = run.recorder, transfer, transfer.reference
+        self.recorder = run.recorder if recorder is None else recorder
+        self.transfer, self.ref = transfer, transfer.reference
         V = self.V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
         u = self.u = dolfinx.fem.Function(V, name="displacement")
         self.u_prev = dolfinx.fem.Function(V)
@@ -239,6 +254,7 @@ class _Part2:
         self.inertia.compile()
         self.loads = NodalLoads(V, transfer.points)
         self.bodies, ties, springs, self.world = _suspension(mesh, ft, layout, p.spring_length)
+        self.plate_springs = springs
         iterative = p.part2_solver == "iterative"
         # CG to 1e-5 per chord step (the SNES still converges to its own 1e-8): measured at
         # paper, 21 chord steps and 729 CG iterations against 18 and 1 105 at 1e-8 (8.2 s, 11.0 s)
@@ -263,7 +279,9 @@ class _Part2:
         self.T = np.asarray(transfer.translation)
         self.R = np.asarray(transfer.rotation)
         _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
-        self.writer = FieldWriter(self.comm, mesh, run.fields / "part2.xdmf")
+        self.writer = (
+            FieldWriter(self.comm, mesh, run.fields / "part2.xdmf") if write_fields else None
+        )
         P1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
         self.u1 = dolfinx.fem.Function(P1)  # at the vertices, for the global frame's fields
         # ParaView's global-frame fields: the scapula where part 1 moved it, and its stress
@@ -279,20 +297,41 @@ class _Part2:
     def _load(self, k: int, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply output ``k``'s transferred forces ``f`` and springs at the recorded pose.
 
-        Floating-frame components; returns their force and moment sums (world frame).
+        Floating-frame components; returns their force and moment sums (world frame), where
+        part 1 balanced them: with a compliant part 1 (:mod:`.correction`), at the surfaces
+        and spring attachments it had moved by ``o``. Part 2 then takes each spring's force
+        there, with its response to the plate's motion from ``o`` (the plate is at ``o`` when
+        part 2 finds the deformation part 1 assumed), and the couple by which ``o`` turns the
+        loads, ``sum o x f``, which it applies through the inertia relief: part 2's linear
+        balance is about the reference shape.
         """
         ref, points = self.ref, self.transfer.points
         Rk, tk = self.R[k], self.T[k]
         self.loads.forces[:] = f @ Rk  # R^T f per row: floating-frame components
         centre = ref + tk
+        tr = self.transfer
+        springs = tr.spring_offsets[k] if tr.spring_offsets else {}
+        #: The couple (N m, floating frame) by which a compliant part 1's offsets turn the
+        #: loads (see above); zero otherwise.
+        self.offset_couple = np.zeros(3)
+        if tr.point_offsets:
+            moved = np.asarray(tr.point_offsets[k])
+            self.offset_couple += np.cross(moved, f @ Rk).sum(axis=0)
+            points = points + moved
         fs, ms = f.sum(axis=0), np.cross(points - ref, f @ Rk).sum(axis=0)
         ms = Rk @ ms
         self.geometric_ratio = 0.0
-        for body, sp in zip(self.bodies, self.world, strict=True):
-            pa = centre + Rk @ (np.asarray(sp.point_a) - ref)
+        plates = zip(self.bodies, self.world, self.plate_springs, strict=True)
+        for body, sp, plate in plates:
+            o = np.asarray(springs.get(sp.name, np.zeros(3)))
+            pa = centre + Rk @ (np.asarray(sp.point_a) + o - ref)
             response = spring_response(sp, pa, np.asarray(sp.point_b))
             g = response.gradient
             body.force = -Rk.T @ g
+            if sp.name in springs:  # the plate spring's response from o, not from 0
+                moved = np.asarray(plate.point_a) + o
+                body.force += spring_response(plate, moved, np.asarray(plate.point_b)).gradient
+                self.offset_couple += np.cross(o, -Rk.T @ g)
             fs, ms = fs - g, ms + np.cross(pa - centre, -g)
             # the recorded tension's geometric stiffness N/l, left out of part 2, against k
             ratio = abs(response.tension) / response.length / sp.stiffness
@@ -310,7 +349,7 @@ class _Part2:
         inertia.om.value[:] = self.omega[k]
         inertia.dom.value[:] = self.domega[k]
         inertia.inv_dt.value = 1.0 / (self.times[k] - self.times[k - 1]) if k > 0 else 0.0
-        resultant = inertia.relieve()
+        resultant = inertia.relieve(self.offset_couple)
         self.iterations += self.system.solve(step=f"part2 {x:.0f} deg")
         # equilibrium of the transferred loads with the springs at the recorded rigid pose
         scale = float(np.abs(f).sum()) or 1.0
@@ -335,8 +374,9 @@ class _Part2:
             "part2_transferred_force", x, float(np.linalg.norm(f, axis=1).sum()), "deg", "N"
         )
         record_von_mises(rec, self.stress_vm, x, data, comm)
-        self.u1.interpolate(self.u)
-        self.writer.write([self.u, *self.stress_vm.fields(), *self._global_fields(k)], x)
+        if self.writer is not None:
+            self.u1.interpolate(self.u)
+            self.writer.write([self.u, *self.stress_vm.fields(), *self._global_fields(k)], x)
         self.u_prev.x.array[:] = self.u.x.array
 
     def _global_fields(self, k: int) -> list:
@@ -369,7 +409,15 @@ class _Part2:
 
 
 def run_part2(
-    model: ShoulderModel, run: RunContext, transfer: Transfer, layout: list[dict], data: dict
+    model: ShoulderModel,
+    run: RunContext,
+    transfer: Transfer,
+    layout: list[dict],
+    data: dict,
+    *,
+    recorder: Recorder | None = None,
+    write_fields: bool = True,
+    on_step: Callable[[int, _Part2], None] | None = None,
 ) -> tuple[VonMises, dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags]:
     """The scapula in its floating frame, linear elastic, one factorization (collective).
 
@@ -379,15 +427,21 @@ def run_part2(
         transfer: Part 1's :class:`~shoulder_fem.families.shoulder.decoupled.Transfer`.
         layout: The flexible elements (:func:`interactions.spring_layout`).
         data: The stepping's outputs; the von Mises stress of the last angle is added.
+        recorder: Where its series, probes and counters go (default the run's).
+        write_fields: Write ``part2.xdmf``.
+        on_step: Called with (output index, the part-2 problem) after each angle's solve.
 
     Returns:
         (the von Mises operator, the scapula mesh, its facet tags), for ``shoulder.npz``.
     """
-    part2 = _Part2(model, run, transfer, layout)
+    part2 = _Part2(model, run, transfer, layout, recorder, write_fields)
     try:
         for k, target in enumerate(part2.angles):
             part2.step(k, target, data)
+            if on_step is not None:
+                on_step(k, part2)
     finally:
-        part2.writer.close()
+        if part2.writer is not None:
+            part2.writer.close()
     part2.finish()
     return part2.stress_vm, part2.mesh, part2.ft

@@ -75,7 +75,14 @@ def check_source(scene: Scene, level: str, source: dict, where: str) -> None:
         raise SceneError(f"{where}: a run of scene {source.get('scene')!r}, not {scene.name!r}")
     if source.get("level") != level:
         raise SceneError(f"{where}: a run at level {source.get('level')!r}, not {level!r}")
-    recorded = source.get("parameters", {})
+    # runs made before part1_bones existed had the paper's rigid part 1
+    recorded = {"part1_bones": "rigid"} | source.get("parameters", {})
+    if recorded["part1_bones"] != "rigid":
+        raise SceneError(
+            f"{where}: its part 1 is part1_bones = {recorded['part1_bones']!r}, which depends "
+            "on the scapula's stiffness (it was corrected by that run's part 2): its loads do "
+            "not hold for another bone. Sweep from a run with part1_bones = rigid"
+        )
     changed = [
         key
         for key, value in scene.values().items()

@@ -108,6 +108,35 @@ def angle_index(angles: np.ndarray, angle: float) -> int | None:
     return int(hit[0]) if len(hit) else None
 
 
+def uncorrected(run: RunData) -> RunData | None:
+    """The paper's rigid decoupling inside a ``part1_bones = compliant`` run, or None.
+
+    Such a run keeps the rigid pass's series, probes and arrays under the prefix
+    ``uncorrected_`` (:mod:`shoulder_fem.families.shoulder.correction`): this is the run as if
+    they were its results (its resources stay those of the whole run).
+    """
+    prefix = "uncorrected_"
+    if prefix + "angles_deg" not in run.arrays:
+        return None
+    summary = dict(run.summary)
+    for part in ("series", "probes"):
+        values = dict(run.summary.get(part, {}))
+        for name in [n for n in values if n.startswith(prefix)]:
+            values[name[len(prefix) :]] = values.pop(name)
+        summary[part] = values
+    arrays = dict(run.arrays)
+    for name in [n for n in arrays if n.startswith(prefix)]:
+        arrays[name[len(prefix) :]] = arrays.pop(name)
+    series = arrays.get("scapula_von_mises_series")
+    if series is not None and len(series):  # the last angle's field, as in shoulder.npz
+        arrays["scapula_von_mises"] = series[-1]
+        arrays["von_mises_angle_deg"] = arrays["von_mises_angles_deg"][-1]
+    n_out = len(np.asarray(arrays["angles_deg"]).reshape(-1))
+    for key in ("glenoid_pressure", "glenoid_shear"):
+        arrays[key] = np.asarray(arrays[key], dtype=float).reshape(n_out, -1)
+    return RunData(run.folder, summary, arrays)
+
+
 def load_run(folder: str | os.PathLike[str]) -> RunData:
     """Read a shoulder run folder.
 

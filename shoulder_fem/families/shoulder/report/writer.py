@@ -13,7 +13,7 @@ from typing import Any
 
 from shoulder_fem.families.base import BenchReport
 from shoulder_fem.families.shoulder.report.contents import FIGURES
-from shoulder_fem.families.shoulder.report.data import RunData, load_run
+from shoulder_fem.families.shoulder.report.data import RunData, load_run, uncorrected
 from shoulder_fem.families.shoulder.report.figures import write_figures
 from shoulder_fem.families.shoulder.report.metrics import compare_runs, resource_table, time_split
 from shoulder_fem.families.shoulder.report.tables import comparison_table, markdown_report
@@ -89,6 +89,8 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
         )
     resources = resource_table(cpl, dec)
     n_polys = write_figures(runs, metrics, pair, resources, out_dir)
+    rigid = uncorrected(dec)
+    rigid_metrics = None if rigid is None else rigid_summary(compare_runs(cpl, rigid)[0])
 
     report: dict[str, Any] = {
         "scene": cpl.summary.get("scene"),
@@ -102,6 +104,7 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
         "section_z_m": {m: float(r.arrays.get("section_z", math.nan)) for m, r in runs.items()},
         "section_polygons": n_polys,
         "per_angle": metrics["per_angle"],
+        "uncorrected": rigid_metrics,
         "resources": resources,
         "time_split": time_split(cpl, dec),
         "notes": notes,
@@ -111,6 +114,24 @@ def write_report(coupled_dir: Path, decoupled_dir: Path, out_dir: Path, level: s
     atomic_write_json(out_dir / "report.json", report)
     atomic_write_text(out_dir / "report.md", markdown_report(report) + "\n")
     return report
+
+
+def rigid_summary(metrics: dict) -> dict:
+    """What the report keeps of the rigid decoupling's comparison (a compliant run's)."""
+    keys = (
+        "max_pressure_rel_error",
+        "max_pressure_rel_errors",
+        "muscle_force_rel_error",
+        "muscle_force_rel_errors",
+        "contact_force_rel_error",
+        "von_mises_correlation",
+        "von_mises_slope",
+    )
+    out = {k: metrics.get(k) for k in keys}
+    out["von_mises_slopes"] = {
+        f"{row['angle_deg']:g}": row["scapula"]["slope"] for row in metrics["von_mises_per_angle"]
+    }
+    return out
 
 
 def bench_report(bench: BenchReport) -> str:

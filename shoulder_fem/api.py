@@ -268,7 +268,7 @@ def sweep(
         out.mkdir(parents=True)
     comm.Barrier()
     rows = []
-    with reuse_meshes():  # one meshing for all the variants
+    with reuse_meshes(source):  # the source's scapula (or one meshing) for every variant
         for i, variant in enumerate(variants):
             name = sw.folder_name(i, variant)
             logger.info("sweep: variant %d of %d: %s", i + 1, len(variants), ", ".join(variant))

@@ -436,7 +436,7 @@ def test_compliant_decoupling_is_closer_to_coupled_at_every_angle(study, complia
     # part 2 again finds the deformation part 1 was given: its plates where the offsets put
     # them (relative to the offsets' 86 um at 60 deg, measured 0.2 %), and the transferred
     # loads balance the springs where part 1 had them, to its Newton tolerance
-    assert res.probes["transfer_equilibrium_residual"] < 1e-5
+    assert res.probes["transfer_equilibrium_residual"] < 1e-8
     _, offset = _series(res, "part1_correction_offset")
     assert np.all(offset[1:] > 0) and offset[-1] < 1e-3, offset
     _, its = _series(res, "part1_correction_iterations")
@@ -551,8 +551,9 @@ def test_transferred_loads_balance_the_springs_and_part2_factorizes_once(study):
     the recorded pose are in equilibrium (a conservation law of part 1); part 2 reuses one
     factorization for every angle."""
     dec = study["results"]["decoupled"]
-    # relative to the transferred loads (~10-100 N); Newton stops at |F| < 1e-3 N
-    assert dec.probes["transfer_equilibrium_residual"] < 1e-5
+    # relative to the transferred loads (~10-100 N); at the output angles Newton goes on to
+    # |F| < 1e-6 N (stepping.OUTPUT_ATOL)
+    assert dec.probes["transfer_equilibrium_residual"] < 1e-8
     assert dec.probes["part2_factorizations"] == 1
     _, inertia = _series(dec, "part2_inertia_force")
     _, loads = _series(dec, "part2_transferred_force")
@@ -844,7 +845,7 @@ def test_two_ranks_give_the_serial_compliant_decoupling(comm_tmp):
     names = ["subscapularis_force", "max_pressure", "scapula_max_von_mises"]
     names += [f"uncorrected_{n}" for n in names] + ["part1_correction_offset"]
     par = _same_on_two_ranks(scene, "decoupled", names, comm_tmp)
-    assert par.probes["transfer_equilibrium_residual"] < 1e-5
+    assert par.probes["transfer_equilibrium_residual"] < 1e-8
 
 
 @pytest.mark.mpi
@@ -893,7 +894,7 @@ def _same_on_two_ranks(scene, method: str, names: list[str], comm_tmp):
         a = np.asarray(par.data["series"][name]["y"])
         b = np.asarray(ser["series"][name]["y"])
         if name == "transfer_equilibrium_residual":
-            assert np.all(a < 1e-5) and np.all(b < 1e-5)
+            assert np.all(a < 1e-8) and np.all(b < 1e-8)
             continue
         assert np.allclose(a, b, rtol=1e-5, atol=1e-9 * np.abs(b).max()), (name, a, b)
     reached = ser["probes"]["final_angle_deg"]

@@ -76,15 +76,19 @@ def test_a_variant_with_the_runs_own_values_reproduces_its_part2(source, comm_tm
     residual = _series(source, "transfer_equilibrium_residual")
     for r in rows:
         mine = _series(out / r["folder"], "transfer_equilibrium_residual")
-        # the same imbalance as the run's own (part 1's Newton stops at |F| < 1e-3 N on loads
-        # of 10-100 N: below 1e-5, as test_shoulder bounds it; 6.4e-8 measured on 2 ranks)
-        assert np.abs(mine - residual).max() <= 1e-12 and mine.max() < 1e-5
+        # the same imbalance as the run's own (part 1's Newton goes on to |F| < 1e-6 N at the
+        # output angles, on loads of 10-100 N: below 1e-8)
+        assert np.abs(mine - residual).max() <= 1e-12 and mine.max() < 1e-8
     # sweep.json's maxima are the run's own series (MPa), as the nodal fields above
     peak = _series(source, "scapula_max_von_mises") * 1e-6
     assert np.allclose(rows[1]["von_mises_max_mpa"], peak, rtol=1e-10, atol=0.0)
-    # meshed once: the second variant's mesh stage is a small part of the first's (measured at
-    # coarse 0.29 against 4.04 CPU s)
-    assert rows[1]["mesh_cpu_s"] < 0.5 * rows[0]["mesh_cpu_s"], rows
+    # not meshed at all: every variant reads the source run's scapula (scapula_mesh.xdmf),
+    # a small part of the source's meshing of the whole joint (measured at coarse: CPU_MEASURE)
+    source_mesh = {
+        s["name"]: s["cpu_s"] for s in json.loads((source / "summary.json").read_text())["stages"]
+    }["mesh"]
+    for r in rows:
+        assert r["mesh_cpu_s"] < 0.25 * source_mesh, (rows, source_mesh)
     # one part 2 each: a single factorization, no part 1
     for r in rows:
         summary = json.loads((out / r["folder"] / "summary.json").read_text())

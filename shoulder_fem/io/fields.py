@@ -207,6 +207,9 @@ class FieldWriter:
                     vtk.close()
             except RuntimeError as err:
                 raise _write_failed(self.path, "closing the file", err) from None
+            finally:  # the C++ writers go now, inside the run's folder, not at a later GC
+                self._vtk.clear()
+                self._file = None
 
     def __enter__(self) -> FieldWriter:
         return self

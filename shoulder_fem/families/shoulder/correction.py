@@ -46,7 +46,7 @@ from shoulder_fem.engine.solver import ConvergenceError
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.newton import solve_with_fallback
 from shoulder_fem.families.shoulder.outputs import UNCORRECTED
-from shoulder_fem.families.shoulder.stepping import AngleOutputs, StepLog
+from shoulder_fem.families.shoulder.stepping import OUTPUT_ATOL, AngleOutputs, StepLog
 from shoulder_fem.families.shoulder.volume import augment
 from shoulder_fem.io.results import Recorder
 
@@ -96,6 +96,18 @@ class NodalValues:
         out = np.zeros((self.n, 3))
         out[self._mine] = u.x.array.reshape(-1, 3)[self._rows]
         return self.comm.allreduce(out, op=MPI.SUM)
+
+
+def _lookup(tree: cKDTree, values: np.ndarray):
+    """Callable(X) -> ``values`` at the gathered nodes (``tree``'s points) at X."""
+
+    def at_nodes(X: np.ndarray) -> np.ndarray:
+        dist, idx = tree.query(X)
+        if len(dist) and dist.max() > 1e-9:
+            raise ValueError(f"part 1 correction: a scapula node not gathered ({X[0]})")
+        return values[idx]
+
+    return at_nodes
 
 
 @dataclass
@@ -170,6 +182,8 @@ def correct_part1(
     stop = None
     vol = part1.volumetric
     tolerance = part1.model.params.soft_tissue_volume_tolerance if vol is not None else 0.0
+    atol = system.snes.getTolerances()[1]
+    system.set_options({"snes_atol": min(OUTPUT_ATOL, atol)})  # these are outputs
     try:
         for k, (snap, target, multipliers) in enumerate(part1.states):
             angle = part1.transfer.angles[k]
@@ -178,13 +192,7 @@ def correct_part1(
             if multipliers is not None:
                 vol.multiplier[:] = multipliers
             o = offsets[k]
-
-            def at_nodes(X, o=o):
-                dist, idx = tree.query(X)
-                if len(dist) and dist.max() > 1e-9:
-                    raise ValueError(f"part 1 correction: a scapula node not gathered ({X[0]})")
-                return o.nodes[idx]
-
+            at_nodes = _lookup(tree, o.nodes)
             system.set_tie_offsets("scapula", at_nodes, o.springs)
             system.control.target = target
             name = f"part1 correction {deg:.0f} deg"
@@ -204,6 +212,7 @@ def correct_part1(
             logger.info("part 1 correction at %.0f deg: %d Newton iterations", deg, its)
             outputs(angle)
     finally:
+        system.set_options({"snes_atol": atol})
         outputs.close()
     newton = system.stats.newton_iterations - before[0]
     scratch.set_probe("part1_correction_newton_iterations", newton, "1")

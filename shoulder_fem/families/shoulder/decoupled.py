@@ -19,6 +19,7 @@ from mpi4py import MPI
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.engine.springs import GROUND, Spring
 from shoulder_fem.families.base import RunContext
+from shoulder_fem.families.shoulder import mesh_store
 from shoulder_fem.families.shoulder.correction import NodalValues, Offsets, adopt, correct_part1
 from shoulder_fem.families.shoulder.geometry import gather_rows, patch_centroid, surface_centroid
 from shoulder_fem.families.shoulder.interactions import (
@@ -73,8 +74,10 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
         data, transfer = _compliant_part1(model, run, layout)
     else:
         data, transfer = run_part1(model, run, layout)
+    if "rigid-bone" in model.meshes:  # part 1 ran here: keep its scapula for later part 2s
+        mesh_store.save(model.meshes["scapula"], run.fields.parent)
     # part 2 holds the scapula alone: part 1's mesh, spaces and forms go before it starts
-    del model.meshes["rigid-bone"]
+    model.meshes.pop("rigid-bone", None)
     release_memory()
     level2 = model.params.part2_level or model.level
     if level2 != model.level:
@@ -180,6 +183,7 @@ class Transfer:
         save_npz(
             path,
             {
+                "reference": self.reference,
                 "points": self.points,
                 "forces": np.asarray(self.forces),
                 "angles_rad": np.asarray(self.angles),

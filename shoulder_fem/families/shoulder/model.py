@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 import dolfinx
 import numpy as np
 import ufl
 from mpi4py import MPI
 
+from shoulder_fem.families.shoulder import mesh_store
 from shoulder_fem.families.shoulder.geometry import glenoid_frame, humeral_cap
 from shoulder_fem.io import ct
 from shoulder_fem.meshes import shoulder as S
@@ -132,21 +134,25 @@ class ShoulderModel:
 #: share the geometry and the level: meshing the joint at ``paper`` took 4.7-4.9 of a
 #: variant's 6.3-6.6 CPU s, part 2 1.5 s), keyed on everything the mesh depends on.
 _MESHES: dict | None = None
+#: The decoupled run whose part 1 the builds within :func:`reuse_meshes` reuse, or None.
+_SOURCE: Path | None = None
 
 
 @contextlib.contextmanager
-def reuse_meshes():
+def reuse_meshes(source: Path | None = None):
     """Keep the meshes between builds within the block (:func:`shoulder_fem.api.sweep`).
 
     A build with the same geometry, level and layers takes the last one's meshes instead of
-    meshing again.
+    meshing again. With ``source`` (a decoupled run whose part 1 every build's run reuses) a
+    decoupled build reads that run's scapula (:mod:`.mesh_store`) instead of meshing the
+    joint, when the run kept it.
     """
-    global _MESHES
-    _MESHES = {}
+    global _MESHES, _SOURCE
+    _MESHES, _SOURCE = {}, source
     try:
         yield
     finally:
-        _MESHES = None
+        _MESHES, _SOURCE = None, None
 
 
 def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderModel:
@@ -175,7 +181,11 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     if _MESHES is not None and key in _MESHES:
         meshes = dict(_MESHES[key])  # a run may drop a mesh from its own dict
     else:
-        meshes = _mesh(scene, comm, geometry, sizes, variants, layers)
+        stored = mesh_store.load(comm, _SOURCE) if method == "decoupled" and _SOURCE else None
+        if stored is not None:  # part 2 alone, on the source run's scapula
+            meshes = {"scapula": stored}
+        else:
+            meshes = _mesh(scene, comm, geometry, sizes, variants, layers)
         if _MESHES is not None:
             _MESHES.clear()
             _MESHES[key] = dict(meshes)
@@ -194,9 +204,13 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
         shaft_axis=axis,
         image=image,
     )
-    first = meshes["deformable" if method == "coupled" else "rigid-bone"]
     if params.ct_image:
         _check_image(scene, params, image, meshes)
+    if method == "decoupled" and "rigid-bone" not in meshes:  # the source run's scapula
+        with np.load(Path(_SOURCE) / "shoulder.npz") as res:
+            model.info["glenoid_frame"] = (res["glenoid_centre"], res["glenoid_axis"])
+        return model
+    first = meshes["deformable" if method == "coupled" else "rigid-bone"]
     model.info["glenoid_frame"] = glenoid_frame(first.mesh, first.facet_tags)
     model.info["humeral_cap"] = humeral_cap(first.mesh, first.facet_tags)
     return model

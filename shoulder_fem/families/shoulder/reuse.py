@@ -115,10 +115,12 @@ def load_part1(model: ShoulderModel, folder: Path) -> tuple[dict, dict]:
         (the stepping's outputs that part 2 and ``shoulder.npz`` use, the fields of the
         :class:`~shoulder_fem.families.shoulder.decoupled.Transfer`).
     """
-    sm = model.meshes["rigid-bone"]
-    # part 1's reference point of the scapula, as part 1 computed it
-    ref = patch_centroid(sm.mesh, sm.facet_tags, S.MARKERS["glenoid_cartilage_bone"].id)
     with np.load(folder / "transfer.npz") as tr:
+        if "reference" in tr:  # part 1's reference point of the scapula, as it computed it
+            ref = np.asarray(tr["reference"])
+        else:  # a run written before transfer.npz kept it: from part 1's mesh
+            sm = model.meshes["rigid-bone"]
+            ref = patch_centroid(sm.mesh, sm.facet_tags, S.MARKERS["glenoid_cartilage_bone"].id)
         transfer = {
             "reference": ref,
             "points": tr["points"],

@@ -4,8 +4,9 @@
 
 Runs the decoupled method once (0-60 deg; or takes ``--from RUN``, a finished decoupled run),
 then ``api.sweep`` over ``--set`` (default ``scapula_modulus_factor=0.5,1,2``): one part 2 per
-value on the recorded part 1. Per variant: total CPU, part 2's CPU, the meshing's (the first
-variant meshes the joint, the others reuse it), part 2 as a fraction of part 1's CPU, and the
+value on the recorded part 1. Per variant: total CPU, part 2's CPU, the mesh stage's (every
+variant reads the run's scapula, ``scapula_mesh.xdmf``; a run written before it kept one has
+its joint meshed again by the first variant), part 2 as a fraction of part 1's CPU, and the
 scapula's largest nodal von Mises stress at the last angle, over the bone and within 20 mm of the
 glenoid's centre; with the run's own value, the largest difference of its nodal von Mises
 stress from the run's own part 2 (relative to the maximum). Targets (issue 21): at ``paper``
@@ -95,7 +96,7 @@ def plot(data: dict, path: Path) -> None:
         x,
         mesh,
         color="0.7",
-        label="meshing (the first variant builds the joint, the others reuse it)",
+        label="mesh stage (reading the run's scapula, scapula_mesh.xdmf)",
     )
     ax.bar(x, part2, bottom=mesh, color="C2", label="part 2")
     ax.bar(x, rest, bottom=mesh + part2, color="C0", label="the rest (reading part 1, output)")

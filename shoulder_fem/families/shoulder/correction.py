@@ -132,7 +132,7 @@ def adopt(recorder: Recorder, scratch: Recorder, replace_plain: bool) -> None:
     """
     for name, entry in scratch.series.items():
         if replace_plain:
-            if name in recorder.series:
+            if name in recorder.series and UNCORRECTED + name not in recorder.series:
                 recorder.series[UNCORRECTED + name] = recorder.series[name]
             recorder.series[name] = entry
         else:

@@ -93,6 +93,9 @@ def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
     part1 = Part1(model, run, layout, keep=True)
     try:
         data, transfer = part1.run()
+        # its LU factors wait for the correction, whose first solve factorizes afresh anyway:
+        # freed while part 2 runs
+        part1.system.snes.getKSP().reset()
         X_tied, _ = part1.system.tied_positions("scapula")
         offsets: list[Offsets] = []
         probe: list[NodalValues] = []

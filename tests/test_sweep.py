@@ -83,7 +83,8 @@ def test_a_variant_with_the_runs_own_values_reproduces_its_part2(source, comm_tm
     peak = _series(source, "scapula_max_von_mises") * 1e-6
     assert np.allclose(rows[1]["von_mises_max_mpa"], peak, rtol=1e-10, atol=0.0)
     # not meshed at all: every variant reads the source run's scapula (scapula_mesh.xdmf),
-    # a small part of the source's meshing of the whole joint (measured at coarse: CPU_MEASURE)
+    # a small part of the source's meshing of the whole joint (measured at coarse: 0.58 and
+    # 0.46 CPU s against 4.5)
     source_mesh = {
         s["name"]: s["cpu_s"] for s in json.loads((source / "summary.json").read_text())["stages"]
     }["mesh"]

@@ -121,13 +121,34 @@ def small_block(comm: MPI.Comm = MPI.COMM_WORLD):
     return u, residual, surfaces
 
 
+def plate_system(
+    plate: RigidBody,
+    springs,
+    options: dict | None = None,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    dynamic: bool = False,
+) -> RigidSystem:
+    """:func:`small_block` with its base fixed and its top tied to ``plate``."""
+    u, residual, surfaces = small_block(comm)
+    return RigidSystem(
+        [plate],
+        list(springs),
+        u=u,
+        residual=residual,
+        surfaces=surfaces,
+        ties=[Tie("plate", "top")],
+        fixed=["base"],
+        dynamic=dynamic,
+        options=options,
+    )
+
+
 def test_tangent_is_exact_taylor_test():
     """Taylor test of the reduced residual at a random, far-from-equilibrium state (plate turned
     by ~0.6 rad, random free displacements, springs plate-ground, node-ground and plate-node,
     an applied moment): the remainder
     |r(x + εd) - r(x) - ε J d| falls as ε² (rate 2), i.e. the tangent (PtAP, tie geometric
     term, rotation-parametrisation term, springs) is the exact derivative."""
-    u, residual, surfaces = small_block()
     plate = RigidBody("plate", (0, 0, 0.04), moment=[1e-3, 0, 2e-3])
     springs = [
         Spring("s", "plate", (0.005, 0, 0.04), GROUND, (0.05, 0, 0.06), 100.0),
@@ -135,15 +156,7 @@ def test_tangent_is_exact_taylor_test():
         Spring("side", "deformable", (0.005, 0, 0.02), GROUND, (0.03, 0.01, 0.02), 300.0),
         Spring("brace", "plate", (-0.005, 0.0, 0.04), "deformable", (-0.005, 0, 0.01), 200.0),
     ]
-    system = RigidSystem(
-        [plate],
-        springs,
-        u=u,
-        residual=residual,
-        surfaces=surfaces,
-        ties=[Tie("plate", "top")],
-        fixed=["base"],
-    )
+    system = plate_system(plate, springs)
     rng = np.random.default_rng(7 + MPI.COMM_WORLD.rank)
     system.move("plate", [1e-4, -2e-4, 3e-4], rotation_about([0.2, 0.1, 1.0], 0.6))
     remainders, rates = taylor_rates(system, rng, 1e-4)
@@ -154,22 +167,13 @@ def test_tangent_is_exact_taylor_test():
 def _plate_on_block(offset: np.ndarray | None):
     """The small block under a plate held by two springs and a moment; the tied nodes and the
     springs' plate ends offset by ``offset`` (m, plate frame) when given: (system, plate)."""
-    u, residual, surfaces = small_block()
     plate = RigidBody("plate", (0, 0, 0.04), moment=[2e-3, -1e-3, 3e-3])
     springs = [
         Spring("a", "plate", (0.005, 0, 0.04), GROUND, (0.05, 0.01, 0.06), 400.0),
         Spring("b", "plate", (-0.005, 0.002, 0.04), GROUND, (-0.04, 0.0, 0.07), 300.0),
     ]
-    system = RigidSystem(
-        [plate],
-        springs,
-        u=u,
-        residual=residual,
-        surfaces=surfaces,
-        ties=[Tie("plate", "top")],
-        fixed=["base"],
-        options={"snes_rtol": 1e-12, "snes_atol": 1e-13, "snes_max_it": 30},
-    )
+    options = {"snes_rtol": 1e-12, "snes_atol": 1e-13, "snes_max_it": 30}
+    system = plate_system(plate, springs, options)
     if offset is not None:
         o = np.asarray(offset, dtype=float)
         system.set_tie_offsets("plate", lambda X: np.tile(o, (len(X), 1)), {"a": o, "b": o})

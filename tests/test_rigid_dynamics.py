@@ -23,11 +23,11 @@ import pytest
 import ufl
 from _util import quadratic_orders, taylor_rates
 from mpi4py import MPI
-from test_rigid_bodies import six_springs, small_block
+from test_rigid_bodies import plate_system, six_springs
 
 from shoulder_fem.engine.mass import mass_properties
 from shoulder_fem.engine.rigid import NewtonEuler
-from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
+from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
 from shoulder_fem.engine.so3 import hat, log_so3, rotation_about
 from shoulder_fem.engine.springs import GROUND, Spring
 
@@ -249,20 +249,8 @@ def plate_mass_properties(comm: MPI.Comm):
 def plate_on_block(comm: MPI.Comm, dynamic: bool, springs=(), options=None, **body_kwargs):
     """The plate (reference point at the centre of the top face) tied to the block's top face,
     the block's base fixed."""
-    u, residual, surfaces = small_block(comm)
     plate = RigidBody("plate", (0, 0, 0.04), **body_kwargs)
-    system = RigidSystem(
-        [plate],
-        list(springs),
-        u=u,
-        residual=residual,
-        surfaces=surfaces,
-        ties=[Tie("plate", "top")],
-        fixed=["base"],
-        dynamic=dynamic,
-        options=options,
-    )
-    return plate, system
+    return plate, plate_system(plate, springs, options, comm, dynamic)
 
 
 @pytest.mark.mpi

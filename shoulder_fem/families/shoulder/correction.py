@@ -48,7 +48,8 @@ from shoulder_fem.engine.solver import ConvergenceError
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.newton import solve_with_fallback
 from shoulder_fem.families.shoulder.outputs import UNCORRECTED
-from shoulder_fem.families.shoulder.stepping import OUTPUT_ATOL, AngleOutputs, StepLog
+from shoulder_fem.families.shoulder.part2 import owned_nodes
+from shoulder_fem.families.shoulder.stepping import AngleOutputs, StepLog, output_tolerance
 from shoulder_fem.families.shoulder.volume import augment
 from shoulder_fem.io.results import Recorder
 
@@ -66,32 +67,13 @@ class NodalValues:
         what: Names the points in the error.
 
     Raises:
-        ValueError: A point that is no node of ``V`` (names how many and the farthest).
+        ValueError: A point that is no node of ``V`` (:func:`.part2.owned_nodes`).
     """
 
     def __init__(self, V, points: np.ndarray, what: str):
         self.comm = V.mesh.comm
         self.n = len(points)
-        n_owned = V.dofmap.index_map.size_local
-        X = V.tabulate_dof_coordinates()[:n_owned]
-        if n_owned and len(points):
-            dist, idx = cKDTree(X).query(points)
-        else:
-            dist, idx = np.full(len(points), np.inf), np.zeros(len(points), dtype=np.int64)
-        self._mine = np.flatnonzero(dist < 1e-9)
-        self._rows = idx[self._mine]
-        found = np.zeros(len(points), dtype=np.int32)
-        found[self._mine] = 1
-        found = self.comm.allreduce(found, op=MPI.SUM)
-        missing = np.flatnonzero(found != 1)
-        if len(missing):
-            far = self.comm.allreduce(
-                float(np.max(dist[missing], initial=0.0)) if len(dist) else 0.0, op=MPI.MIN
-            )
-            raise ValueError(
-                f"{what}: {len(missing)} of {len(points)} points are no node of part 2's "
-                f"scapula mesh (e.g. {points[missing[0]].tolist()} m, {far:.3g} m from one)"
-            )
+        self._mine, self._rows = owned_nodes(V, points, what)
 
     def __call__(self, u) -> np.ndarray:
         """``u``'s values (n, 3) at the points (collective)."""
@@ -142,7 +124,8 @@ def adopt(recorder: Recorder, scratch: Recorder, replace_plain: bool) -> None:
     for name, value in scratch.probes.items():
         if replace_plain:
             if name in recorder.probes:
-                recorder.set_probe(UNCORRECTED + name, recorder.probes[name], None)
+                unit = recorder.probe_units.get(name)
+                recorder.set_probe(UNCORRECTED + name, recorder.probes[name], unit)
             recorder.set_probe(name, value, scratch.probe_units.get(name))
         else:
             recorder.set_probe(UNCORRECTED + name, value, scratch.probe_units.get(name))
@@ -150,14 +133,32 @@ def adopt(recorder: Recorder, scratch: Recorder, replace_plain: bool) -> None:
         recorder.count(key, n)
 
 
+def _resolve(part1, k: int, at_nodes, springs: dict, log: StepLog, tolerance: float) -> int:
+    """Part 1 from output ``k``'s state with the scapula's offsets; Newton iterations."""
+    system = part1.system
+    snap, target, multipliers = part1.states[k]
+    system.restore(snap)
+    if multipliers is not None:
+        part1.volumetric.multiplier[:] = multipliers
+    system.set_tie_offsets("scapula", at_nodes, springs)
+    system.control.target = target
+    name = f"part1 correction {math.degrees(part1.transfer.angles[k]):.0f} deg"
+    its = solve_with_fallback(system, name, snap, None, log)
+    its += augment(system, name, tolerance)
+    part1.contact.commit()
+    return its
+
+
 def correct_part1(
-    part1, offsets: list[Offsets], run: RunContext
+    part1, nodes: np.ndarray, offsets: list[Offsets], run: RunContext
 ) -> tuple[dict, object, str | None]:
     """Solve part 1 again at each output angle with the scapula's offsets (collective).
 
     Args:
         part1: The rigid part 1 after its :meth:`~.decoupled.Part1.run` (kept alive, with
             its states).
+        nodes: Part 1's scapula nodes (m; :meth:`RigidSystem.tied_positions`, gathered), the
+            rows of each :attr:`Offsets.nodes`.
         offsets: Per output angle, part 2's displacement where part 1 needs it.
         run: The run's context (its recorder gets the corrected series; the rigid ones become
             ``uncorrected_``).
@@ -167,8 +168,7 @@ def correct_part1(
         stopped before the last angle).
     """
     system, job, rec = part1.system, part1.job, run.recorder
-    X_tied, _ = system.tied_positions("scapula")
-    tree = cKDTree(X_tied)
+    tree = cKDTree(nodes)
     # the same points and reference; the lists filled at each corrected output
     lists = ("angles", "forces", "translation", "rotation", "humerus_rotation")
     lists += ("spring_offsets", "point_offsets")
@@ -184,37 +184,25 @@ def correct_part1(
     stop = None
     vol = part1.volumetric
     tolerance = part1.model.params.soft_tissue_volume_tolerance if vol is not None else 0.0
-    atol = system.snes.getTolerances()[1]
-    system.set_options({"snes_atol": min(OUTPUT_ATOL, atol)})  # these are outputs
     try:
-        for k, (snap, target, multipliers) in enumerate(part1.states):
-            angle = part1.transfer.angles[k]
-            deg = math.degrees(angle)
-            system.restore(snap)
-            if multipliers is not None:
-                vol.multiplier[:] = multipliers
-            o = offsets[k]
-            at_nodes = _lookup(tree, o.nodes)
-            system.set_tie_offsets("scapula", at_nodes, o.springs)
-            system.control.target = target
-            name = f"part1 correction {deg:.0f} deg"
-            try:
-                its = solve_with_fallback(system, name, snap, None, log)
-                its += augment(system, name, tolerance)
-            except ConvergenceError as err:
-                stop = f"part 1's correction did not converge at {deg:.0f} deg ({err.reason})"
-                logger.error("%s", stop)
-                break
-            part1.contact.commit()
-            corrected.spring_offsets.append(o.springs)
-            corrected.point_offsets.append(at_nodes(corrected.points))
-            scratch.add_series_point("part1_correction_iterations", deg, its, "deg", "1")
-            move = float(np.linalg.norm(o.nodes, axis=1).max(initial=0.0))
-            scratch.add_series_point("part1_correction_offset", deg, move, "deg", "m")
-            logger.info("part 1 correction at %.0f deg: %d Newton iterations", deg, its)
-            outputs(angle)
+        with output_tolerance(system):  # these are outputs
+            for k, o in enumerate(offsets):  # one per output state
+                deg = math.degrees(part1.transfer.angles[k])
+                at_nodes = _lookup(tree, o.nodes)
+                try:
+                    its = _resolve(part1, k, at_nodes, o.springs, log, tolerance)
+                except ConvergenceError as err:
+                    stop = f"part 1's correction did not converge at {deg:.0f} deg ({err.reason})"
+                    logger.error("%s", stop)
+                    break
+                corrected.spring_offsets.append(o.springs)
+                corrected.point_offsets.append(at_nodes(corrected.points))
+                scratch.add_series_point("part1_correction_iterations", deg, its, "deg", "1")
+                move = float(np.linalg.norm(o.nodes, axis=1).max(initial=0.0))
+                scratch.add_series_point("part1_correction_offset", deg, move, "deg", "m")
+                logger.info("part 1 correction at %.0f deg: %d Newton iterations", deg, its)
+                outputs(part1.transfer.angles[k])
     finally:
-        system.set_options({"snes_atol": atol})
         outputs.close()
     newton = system.stats.newton_iterations - before[0]
     scratch.set_probe("part1_correction_newton_iterations", newton, "1")

@@ -121,7 +121,7 @@ def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
             )
         adopt(run.recorder, scratch, replace_plain=False)
         with run.monitor.stage("part1_correction"):
-            corrected, transfer, stop = correct_part1(part1, offsets, run)
+            corrected, transfer, stop = correct_part1(part1, X_tied, offsets, run)
     finally:
         part1.destroy()
     if stop is not None:

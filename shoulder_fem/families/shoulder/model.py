@@ -159,15 +159,8 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     """Mesh the joint for ``method`` (collective): all bodies, or soft tissues + the scapula."""
     values = scene.values()
     params = ShoulderParameters.from_values(values)
-    if (
-        method == "decoupled"
-        and params.part1_bones == "compliant"
-        and params.part2_level
-        not in (
-            "",
-            level,
-        )
-    ):
+    elsewhere = params.part2_level not in ("", level)
+    if method == "decoupled" and params.part1_bones == "compliant" and elsewhere:
         raise SceneError(
             f"{scene.where('part1_bones')}: part1_bones = compliant needs part 2 on part 1's "
             f"mesh (it moves part 1's scapula nodes by part 2's displacement there), but "

@@ -40,7 +40,14 @@ from shoulder_fem.meshes import shoulder as S
 if TYPE_CHECKING:
     from shoulder_fem.families.shoulder.decoupled import Transfer
 
-__all__ = ["CHORD_OPTIONS", "FrameInertia", "NodalLoads", "finite_differences", "run_part2"]
+__all__ = [
+    "CHORD_OPTIONS",
+    "FrameInertia",
+    "NodalLoads",
+    "finite_differences",
+    "owned_nodes",
+    "run_part2",
+]
 
 #: Newton settings of part 2: the Jacobian of the first solve is kept (chord iterations).
 CHORD_OPTIONS = {
@@ -55,6 +62,34 @@ CHORD_OPTIONS = {
 }
 
 
+def owned_nodes(V, points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Which of ``points`` (m, the same on every rank) are nodes this rank owns (collective).
+
+    Returns:
+        (their indices in ``points``, their local node indices in ``V``).
+
+    Raises:
+        ValueError: A point that is no node of ``V`` (``what`` names the points).
+    """
+    comm = V.mesh.comm
+    n_owned = V.dofmap.index_map.size_local
+    X = V.tabulate_dof_coordinates()[:n_owned]
+    if n_owned and len(points):
+        dist, idx = cKDTree(X).query(points)
+    else:
+        dist, idx = np.full(len(points), np.inf), np.zeros(len(points), dtype=np.int64)
+    mine = np.flatnonzero(dist < 1e-9)
+    found = np.zeros(len(points), dtype=np.int32)
+    found[mine] = 1
+    missing = np.flatnonzero(comm.allreduce(found, op=MPI.SUM) != 1)
+    if len(missing):
+        raise ValueError(
+            f"{what}: {len(missing)} of {len(points)} points are no node of the scapula mesh "
+            f"(e.g. {points[missing[0]].tolist()} m)"
+        )
+    return mine, idx[mine]
+
+
 class NodalLoads:
     """Given nodal forces (N) on a :class:`RigidSystem`, through its contact hook.
 
@@ -63,17 +98,7 @@ class NodalLoads:
 
     def __init__(self, V, points: np.ndarray):
         self.comm = V.mesh.comm
-        n_owned = V.dofmap.index_map.size_local
-        X = V.tabulate_dof_coordinates()[:n_owned]
-        dist, idx = cKDTree(X).query(points) if n_owned else (np.full(len(points), np.inf), None)
-        self._mine = np.flatnonzero(dist < 1e-9)
-        self._rows = idx[self._mine] if idx is not None else np.zeros(0, dtype=np.int64)
-        found = self.comm.allreduce(len(self._mine), op=MPI.SUM)
-        if found != len(points):
-            raise ValueError(
-                f"decoupled part 2: {len(points) - found} of {len(points)} transferred load "
-                "points are no node of the scapula mesh"
-            )
+        self._mine, self._rows = owned_nodes(V, points, "decoupled part 2: transferred loads")
         self.forces = np.zeros((len(points), 3))
 
     def add_residual(self, b: PETSc.Vec) -> None:

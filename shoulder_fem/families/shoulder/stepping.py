@@ -15,6 +15,7 @@ outputs every ``output_angle`` are exact and no sliver of a step is left before 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 from collections.abc import Callable
@@ -67,6 +68,7 @@ __all__ = [
     "StepLog",
     "Stepping",
     "drive_rotation",
+    "output_tolerance",
     "run_steps",
 ]
 
@@ -86,6 +88,18 @@ ANGLE_SCALE = 1e5
 #: balance part 1's springs to about 1e-8 of them (issue 21) and what the methods are compared
 #: on is exact to well below what separates them.
 OUTPUT_ATOL = 1e-6
+
+
+@contextlib.contextmanager
+def output_tolerance(system: RigidSystem):
+    """Newton's absolute tolerance at ``OUTPUT_ATOL`` within the block (if that is tighter)."""
+    atol = system.snes.getTolerances()[1]
+    system.set_options({"snes_atol": min(OUTPUT_ATOL, atol)})
+    try:
+        yield
+    finally:
+        system.set_options({"snes_atol": atol})
+
 
 #: Newton iterations per step that the adaptive increments aim at: the next increment is the
 #: last one times sqrt(TARGET_ITERATIONS / iterations), within [1/2, 2].
@@ -278,18 +292,15 @@ class AngleStepper:
         as it was, with a warning.
         """
         system = self.system
-        atol = system.snes.getTolerances()[1]
         snap = system.snapshot()
         name = f"{self.label} {math.degrees(self.theta):.2f} deg (output)"
-        system.set_options({"snes_atol": min(OUTPUT_ATOL, atol)})
         try:
-            its = system.solve(step=name)
+            with output_tolerance(system):
+                its = system.solve(step=name)
         except ConvergenceError as err:
             system.restore(snap)
             logger.warning("%s: not tightened (%s)", name, err.reason)
             its = 0
-        finally:
-            system.set_options({"snes_atol": atol})
         self.contact.commit()
         self.log.newton_iterations += its
         return its

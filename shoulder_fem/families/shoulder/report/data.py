@@ -131,10 +131,16 @@ def uncorrected(run: RunData) -> RunData | None:
     if series is not None and len(series):  # the last angle's field, as in shoulder.npz
         arrays["scapula_von_mises"] = series[-1]
         arrays["von_mises_angle_deg"] = arrays["von_mises_angles_deg"][-1]
-    n_out = len(np.asarray(arrays["angles_deg"]).reshape(-1))
+    return RunData(run.folder, summary, _maps_by_angle(arrays))
+
+
+def _maps_by_angle(arrays: dict) -> dict:
+    """``arrays`` with the glenoid's pressure and shear maps as (n_out, n_g) (in place)."""
+    n_out = len(np.asarray(arrays.get("angles_deg", [])).reshape(-1))
     for key in ("glenoid_pressure", "glenoid_shear"):
-        arrays[key] = np.asarray(arrays[key], dtype=float).reshape(n_out, -1)
-    return RunData(run.folder, summary, arrays)
+        if key in arrays:
+            arrays[key] = np.asarray(arrays[key], dtype=float).reshape(n_out, -1)
+    return arrays
 
 
 def load_run(folder: str | os.PathLike[str]) -> RunData:
@@ -159,8 +165,4 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
         )
     with np.load(npz, allow_pickle=False) as data:
         arrays = {k: np.asarray(data[k]) for k in data.files}
-    n_out = len(np.asarray(arrays.get("angles_deg", [])).reshape(-1))
-    for key in ("glenoid_pressure", "glenoid_shear"):
-        if key in arrays:
-            arrays[key] = np.asarray(arrays[key], dtype=float).reshape(n_out, -1)
-    return RunData(folder, summary, arrays)
+    return RunData(folder, summary, _maps_by_angle(arrays))

@@ -94,6 +94,8 @@ def test_a_variant_with_the_runs_own_values_reproduces_its_part2(source, comm_tm
     for r in rows:
         summary = json.loads((out / r["folder"] / "summary.json").read_text())
         assert summary["probes"]["part2_factorizations"] == 1
+        # only the scapula was built: the run's DOFs are part 2's (the source's: the joint too)
+        assert summary["dofs"] == summary["dofs_part2"], summary["dofs"]
         assert [s["name"] for s in summary["stages"]] == ["mesh", "part2", "decoupled"]
     # a figure with its two panels (88 kB for a coarse sweep), not an empty file
     assert (out / "sweep.json").is_file() and (out / "sweep.png").stat().st_size > 10_000

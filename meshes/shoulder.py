@@ -192,7 +192,9 @@ SOFT_SURFACES = tuple(
     m for m in SURFACES if m.name.startswith(("humeral_", "glenoid_")) or m.name.startswith(MUSCLES)
 )
 
-VARIANTS = ("deformable", "rigid-bone", "scapula")
+VARIANTS = ("deformable", "rigid-bone", "scapula", "humerus")
+#: The variants of one bone alone (its volume and the surfaces on it).
+BONE_VARIANTS = {"scapula": SCAPULA, "humerus": HUMERUS}
 HEAD_SHAPES = ("spherical", "ellipsoidal", "prosthetic")
 
 _MM = 1e3  # gmsh works in mm
@@ -1257,8 +1259,8 @@ def model_to_dolfinx(
     Args:
         comm: communicator the meshes are distributed on (collective).
         info: the result of :func:`build_model` on ``rank`` (ignored elsewhere).
-        variant: ``"deformable"``, ``"rigid-bone"`` or ``"scapula"`` (the scapula volume and
-            the surfaces on it).
+        variant: ``"deformable"``, ``"rigid-bone"``, ``"scapula"`` or ``"humerus"`` (that
+            bone's volume and the surfaces on it).
         rank: the rank holding the gmsh model.
         detach: ``deformable`` only: names of bonded surfaces to cut open, as
             ``(surface, volume)`` pairs: the volume's cells get their own copy of the
@@ -1281,11 +1283,12 @@ def model_to_dolfinx(
 
     if variant not in VARIANTS:
         raise ValueError(f"variant = {variant!r}: expected one of {VARIANTS}")
-    if variant == "scapula":
-        # the scapula alone (part 2 of the decoupled method): its volume and every surface
-        # whose nodes are all scapula nodes (interfaces, springs, section), node for node those
-        # of the other variants
-        cells = {SCAPULA.id: info["volumes"][SCAPULA.name]} if comm.rank == rank else None
+    if variant in BONE_VARIANTS:
+        # one bone alone (the scapula for part 2 of the decoupled method, the humerus for its
+        # compliant correction): its volume and every surface whose nodes are all the bone's
+        # (interfaces, springs, section), node for node those of the other variants
+        bone = BONE_VARIANTS[variant]
+        cells = {bone.id: info["volumes"][bone.name]} if comm.rank == rank else None
         facets = (
             {m.id: info["surfaces"][m.name] for m in SURFACES if m.name in info["surfaces"]}
             if comm.rank == rank
@@ -1730,9 +1733,9 @@ def build_shoulder_mesh(
         comm: communicator.
         geometry: parameters (SI).
         sizes: mesh sizes in m (see :func:`build_model`).
-        variant: ``"deformable"`` (bone volumes meshed), ``"rigid-bone"`` or ``"scapula"``; a
-            tuple of them gives ``{variant: ShoulderMesh}`` from one gmsh mesh (node for node
-            the same points on shared surfaces).
+        variant: ``"deformable"`` (bone volumes meshed), ``"rigid-bone"``, ``"scapula"`` or
+            ``"humerus"``; a tuple of them gives ``{variant: ShoulderMesh}`` from one gmsh mesh
+            (node for node the same points on shared surfaces).
         rank: rank that runs gmsh.
         detach: bonded ``(surface, volume)`` pairs cut open in the ``deformable`` variant
             (:func:`model_to_dolfinx`).

@@ -180,11 +180,15 @@ class DeformablePart:
                 u[nodes] = body.translation + r @ body.rotation.T - d
         self.u.x.scatter_forward()
 
-    def reaction(self, surface: str, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-        """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``."""
+    def reaction(self, surface, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``.
+
+        ``surface``: a name, or several (their nodes counted once: surfaces that share an edge).
+        """
         point = np.zeros(3) if point is None else np.asarray(point, dtype=float)
         self.assemble_residual()
-        owned = self.layout.fixed_owned[surface]
+        names = (surface,) if isinstance(surface, str) else tuple(surface)
+        owned = np.unique(np.concatenate([self.layout.fixed_owned[n] for n in names]))
         f = self.F.array_r.reshape(-1, 3)[owned]
         x = self.layout.X[owned] + self.u.x.array.reshape(-1, 3)[owned]
         local = np.r_[f.sum(axis=0), np.cross(x - point, f).sum(axis=0)]

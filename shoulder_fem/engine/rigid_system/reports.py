@@ -76,8 +76,11 @@ class SystemReports:
         self._fe.assemble_residual()
         return self._fe.F
 
-    def reaction(self, surface: str, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-        """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``."""
+    def reaction(self, surface, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``.
+
+        ``surface``: a name, or several (a node they share counted once).
+        """
         return self._fe.reaction(surface, point)
 
     def tied_positions(self, name: str) -> tuple[np.ndarray, np.ndarray]:

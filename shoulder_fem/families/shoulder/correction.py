@@ -57,6 +57,13 @@ __all__ = ["UNCORRECTED", "NodalValues", "Offsets", "adopt", "correct_part1"]
 
 logger = logging.getLogger(__name__)
 
+#: Newton's absolute tolerance (N) of the correction's solves: each starts from a converged
+#: state, a small change away, and converges quadratically, so a tolerance 100 x tighter than
+#: the stepping's outputs (:data:`.stepping.OUTPUT_ATOL`) costs at most one more iteration; it
+#: keeps the transferred loads in balance to 1e-8 of them at 0 deg too, where they are ten
+#: times smaller than at 60 deg (measured at coarse with the humerus offset: 2.8e-8 at 1e-6 N).
+CORRECTION_ATOL = 1e-8
+
 
 class NodalValues:
     """A vector field's values at given nodes of its mesh, in their order, on every rank.
@@ -133,14 +140,18 @@ def adopt(recorder: Recorder, scratch: Recorder, replace_plain: bool) -> None:
         recorder.count(key, n)
 
 
-def _resolve(part1, k: int, at_nodes, springs: dict, log: StepLog, tolerance: float) -> int:
-    """Part 1 from output ``k``'s state with the scapula's offsets; Newton iterations."""
+def _resolve(part1, k: int, moved: dict, log: StepLog, tolerance: float) -> int:
+    """Part 1 from output ``k``'s state with the bones' offsets; Newton iterations.
+
+    ``moved``: {body: (callable(X) -> offsets at its tied nodes, {spring: offset})}.
+    """
     system = part1.system
     snap, target, multipliers = part1.states[k]
     system.restore(snap)
     if multipliers is not None:
         part1.volumetric.multiplier[:] = multipliers
-    system.set_tie_offsets("scapula", at_nodes, springs)
+    for body, (at_nodes, springs) in moved.items():
+        system.set_tie_offsets(body, at_nodes, springs)
     system.control.target = target
     name = f"part1 correction {math.degrees(part1.transfer.angles[k]):.0f} deg"
     its = solve_with_fallback(system, name, snap, None, log)
@@ -150,16 +161,17 @@ def _resolve(part1, k: int, at_nodes, springs: dict, log: StepLog, tolerance: fl
 
 
 def correct_part1(
-    part1, nodes: np.ndarray, offsets: list[Offsets], run: RunContext
+    part1, nodes: dict, offsets: list[dict], run: RunContext
 ) -> tuple[dict, object, str | None]:
-    """Solve part 1 again at each output angle with the scapula's offsets (collective).
+    """Solve part 1 again at each output angle with the bones' offsets (collective).
 
     Args:
         part1: The rigid part 1 after its :meth:`~.decoupled.Part1.run` (kept alive, with
             its states).
-        nodes: Part 1's scapula nodes (m; :meth:`RigidSystem.tied_positions`, gathered), the
-            rows of each :attr:`Offsets.nodes`.
-        offsets: Per output angle, part 2's displacement where part 1 needs it.
+        nodes: Per body (``scapula``, and ``humerus`` if it is offset too), part 1's nodes
+            tied to it (m; :meth:`RigidSystem.tied_positions`, gathered): the rows of each of
+            its :attr:`Offsets.nodes`.
+        offsets: Per output angle, {body: part 2's displacement where part 1 needs it}.
         run: The run's context (its recorder gets the corrected series; the rigid ones become
             ``uncorrected_``).
 
@@ -168,7 +180,7 @@ def correct_part1(
         stopped before the last angle).
     """
     system, job, rec = part1.system, part1.job, run.recorder
-    tree = cKDTree(nodes)
+    trees = {body: cKDTree(X) for body, X in nodes.items()}
     # the same points and reference; the lists filled at each corrected output
     lists = ("angles", "forces", "translation", "rotation", "humerus_rotation")
     lists += ("spring_offsets", "point_offsets")
@@ -185,21 +197,25 @@ def correct_part1(
     vol = part1.volumetric
     tolerance = part1.model.params.soft_tissue_volume_tolerance if vol is not None else 0.0
     try:
-        with output_tolerance(system):  # these are outputs
-            for k, o in enumerate(offsets):  # one per output state
+        with output_tolerance(system, CORRECTION_ATOL):  # these are outputs
+            for k, by_body in enumerate(offsets):  # one per output state
                 deg = math.degrees(part1.transfer.angles[k])
-                at_nodes = _lookup(tree, o.nodes)
+                moved = {
+                    body: (_lookup(trees[body], o.nodes), o.springs) for body, o in by_body.items()
+                }
                 try:
-                    its = _resolve(part1, k, at_nodes, o.springs, log, tolerance)
+                    its = _resolve(part1, k, moved, log, tolerance)
                 except ConvergenceError as err:
                     stop = f"part 1's correction did not converge at {deg:.0f} deg ({err.reason})"
                     logger.error("%s", stop)
                     break
-                corrected.spring_offsets.append(o.springs)
-                corrected.point_offsets.append(at_nodes(corrected.points))
+                corrected.spring_offsets.append(by_body["scapula"].springs)
+                corrected.point_offsets.append(moved["scapula"][0](corrected.points))
                 scratch.add_series_point("part1_correction_iterations", deg, its, "deg", "1")
-                move = float(np.linalg.norm(o.nodes, axis=1).max(initial=0.0))
-                scratch.add_series_point("part1_correction_offset", deg, move, "deg", "m")
+                for body, o in by_body.items():
+                    move = float(np.linalg.norm(o.nodes, axis=1).max(initial=0.0))
+                    name = "part1_correction_offset" + ("" if body == "scapula" else f"_{body}")
+                    scratch.add_series_point(name, deg, move, "deg", "m")
                 logger.info("part 1 correction at %.0f deg: %d Newton iterations", deg, its)
                 outputs(part1.transfer.angles[k])
     finally:

@@ -22,6 +22,7 @@ from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder import mesh_store
 from shoulder_fem.families.shoulder.correction import NodalValues, Offsets, adopt, correct_part1
 from shoulder_fem.families.shoulder.geometry import gather_rows, patch_centroid, surface_centroid
+from shoulder_fem.families.shoulder.humerus import HumerusRecorder, humerus_offsets
 from shoulder_fem.families.shoulder.interactions import (
     joint_contact,
     soft_tissue_residual,
@@ -70,7 +71,7 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
         data, fields = load_part1(model, run.part1_from)
         transfer = Transfer(**fields)
         run.recorder.extra("part1_from", str(run.part1_from))
-    elif model.params.part1_bones == "compliant":
+    elif model.params.compliant_part1:
         data, transfer = _compliant_part1(model, run, layout)
     else:
         data, transfer = run_part1(model, run, layout)
@@ -97,14 +98,14 @@ def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
         # freed while part 2 runs
         part1.system.snes.getKSP().reset()
         X_tied, _ = part1.system.tied_positions("scapula")
-        offsets: list[Offsets] = []
+        scapula: list[Offsets] = []
         probe: list[NodalValues] = []
 
         def collect(k: int, part2) -> None:
             if not probe:
                 probe.append(NodalValues(part2.V, X_tied, "part 1's scapula nodes"))
             springs = {b.name: b.translation.copy() for b in part2.bodies}
-            offsets.append(Offsets(probe[0](part2.u), springs))
+            scapula.append(Offsets(probe[0](part2.u), springs))
 
         scratch = Recorder(run.recorder.comm, run.recorder.folder)
         rigid: dict = {}
@@ -120,8 +121,17 @@ def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
                 on_step=collect,
             )
         adopt(run.recorder, scratch, replace_plain=False)
+        nodes = {"scapula": X_tied}
+        offsets = [{"scapula": o} for o in scapula]
+        if model.params.part1_humerus:  # the humerus's deformation too (.humerus)
+            nodes["humerus"], _ = part1.system.tied_positions("humerus")
+            with run.monitor.stage("humerus"):
+                humerus = humerus_offsets(model, run, part1, nodes["humerus"])
+            for by_body, o in zip(offsets, humerus, strict=True):
+                by_body["humerus"] = o
+        model.meshes.pop("humerus", None)
         with run.monitor.stage("part1_correction"):
-            corrected, transfer, stop = correct_part1(part1, X_tied, offsets, run)
+            corrected, transfer, stop = correct_part1(part1, nodes, offsets, run)
     finally:
         part1.destroy()
     if stop is not None:
@@ -315,6 +325,8 @@ class Part1:
         )
         self.transfer = Transfer(reference=scapula_ref)
         self.record = _TransferRecorder(V, ft, system, (scapula, humerus), self.transfer)
+        #: Part 1's loads on the humerus, for the compliant correction (with ``keep`` only)
+        self.humerus = HumerusRecorder(V, ft, system, humerus, HUMERUS_TIES, p) if keep else None
         self.probe = Probe(u, ct_, ft, contact, p, self.volumetric)
         #: Per output angle: the system's snapshot, the angle's target (rad), the
         #: incompressible tissue's multipliers (or None); with ``keep`` only.
@@ -335,6 +347,8 @@ class Part1:
 
     def _on_output(self, target: float) -> None:
         self.record(target)
+        if self.humerus is not None:
+            self.humerus(target)
         if self.keep:
             vol = self.volumetric
             multipliers = None if vol is None else vol.multiplier.copy()

@@ -106,15 +106,24 @@ def cap_angles(X: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> np.ndarra
     return np.arccos(np.clip(d @ axis / np.where(r > 0, r, 1.0), -1.0, 1.0))
 
 
-def best_fit_rotation(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> np.ndarray:
-    """Rotation of the least-squares rigid fit x ~ c + R (X - C) over the owned points (Kabsch)."""
+def rigid_fit(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> tuple[np.ndarray, ...]:
+    """The least-squares rigid fit ``x ~ c + R (X - C)`` over the owned points (collective).
+
+    Returns:
+        (C, c, R): the centroids (m) of X and x, and the rotation (Kabsch).
+    """
     n = comm.allreduce(len(X), op=MPI.SUM)
     C = comm.allreduce(X.sum(axis=0), op=MPI.SUM) / n
     c = comm.allreduce(x.sum(axis=0), op=MPI.SUM) / n
     H = comm.allreduce((X - C).T @ (x - c), op=MPI.SUM)
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.T @ U.T))
-    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return C, c, Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+
+
+def best_fit_rotation(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> np.ndarray:
+    """Rotation of the least-squares rigid fit x ~ c + R (X - C) over the owned points (Kabsch)."""
+    return rigid_fit(X, x, comm)[2]
 
 
 def twist_gradient(R: np.ndarray, axis: np.ndarray, h: float = 1e-6) -> np.ndarray:

@@ -101,6 +101,16 @@ class ShoulderParameters:
         return self.muscle_contact in ("humeral-head", "bones")
 
     @property
+    def compliant_part1(self) -> bool:
+        """Whether part 1 sees the bones' compliance (``part1_bones``, :mod:`.correction`)."""
+        return self.part1_bones != "rigid"
+
+    @property
+    def part1_humerus(self) -> bool:
+        """Whether the compliant part 1 sees the humerus's compliance too (:mod:`.humerus`)."""
+        return self.part1_bones == "compliant"
+
+    @property
     def scapula_contact(self) -> bool:
         """Whether the rotator cuff slides on the scapula too (``muscle_contact = bones``)."""
         return self.muscle_contact == "bones"
@@ -160,15 +170,17 @@ def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderMode
     values = scene.values()
     params = ShoulderParameters.from_values(values)
     elsewhere = params.part2_level not in ("", level)
-    if method == "decoupled" and params.part1_bones == "compliant" and elsewhere:
+    if method == "decoupled" and params.compliant_part1 and elsewhere:
         raise SceneError(
-            f"{scene.where('part1_bones')}: part1_bones = compliant needs part 2 on part 1's "
-            f"mesh (it moves part 1's scapula nodes by part 2's displacement there), but "
+            f"{scene.where('part1_bones')}: part1_bones = {params.part1_bones} needs part 2 on "
+            f"part 1's mesh (it moves part 1's scapula nodes by part 2's displacement there), but "
             f"part2_level = {params.part2_level!r} differs from the level {level!r}"
         )
     geometry = S.geometry_from_values(values)
     sizes = scene.level(level)
     variants = ("deformable",) if method == "coupled" else ("rigid-bone", "scapula")
+    if method == "decoupled" and params.part1_humerus:
+        variants += ("humerus",)  # the humerus's deformation for part 1 (.humerus)
     layers = (params.humeral_head_contact, params.scapula_contact)
     key = (comm.py2f(), repr(geometry), repr(sorted(sizes.items())), variants, layers)
     if _MESHES is not None and key in _MESHES:

@@ -84,7 +84,7 @@ def owned_nodes(V, points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarra
     missing = np.flatnonzero(comm.allreduce(found, op=MPI.SUM) != 1)
     if len(missing):
         raise ValueError(
-            f"{what}: {len(missing)} of {len(points)} points are no node of the scapula mesh "
+            f"{what}: {len(missing)} of {len(points)} points are no node of the bone's mesh "
             f"(e.g. {points[missing[0]].tolist()} m)"
         )
     return mine, idx[mine]
@@ -96,9 +96,9 @@ class NodalLoads:
     External loads: subtracted from the residual; no tangent.
     """
 
-    def __init__(self, V, points: np.ndarray):
+    def __init__(self, V, points: np.ndarray, what: str = "decoupled part 2: transferred loads"):
         self.comm = V.mesh.comm
-        self._mine, self._rows = owned_nodes(V, points, "decoupled part 2: transferred loads")
+        self._mine, self._rows = owned_nodes(V, points, what)
         self.forces = np.zeros((len(points), 3))
 
     def add_residual(self, b: PETSc.Vec) -> None:

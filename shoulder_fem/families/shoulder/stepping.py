@@ -91,10 +91,10 @@ OUTPUT_ATOL = 1e-6
 
 
 @contextlib.contextmanager
-def output_tolerance(system: RigidSystem):
-    """Newton's absolute tolerance at ``OUTPUT_ATOL`` within the block (if that is tighter)."""
+def output_tolerance(system: RigidSystem, tolerance: float = OUTPUT_ATOL):
+    """Newton's absolute tolerance at ``tolerance`` (N) within the block (if that is tighter)."""
     atol = system.snes.getTolerances()[1]
-    system.set_options({"snes_atol": min(OUTPUT_ATOL, atol)})
+    system.set_options({"snes_atol": min(tolerance, atol)})
     try:
         yield
     finally:

@@ -183,7 +183,8 @@ def _int_or_none(value: Any) -> int | None:
 def resource_table(cpl: RunData, dec: RunData) -> dict[str, dict[str, Any]]:
     """Table II: per method (whole run) and per decoupled part (its stage).
 
-    With ``part1_bones = compliant``, part 1 with its correction and part 2's two passes.
+    With a compliant part 1 (``part1_bones``), part 1 with the humerus's deformation and its
+    correction, and part 2's two passes.
 
     Returns:
         A row per column of the table (``coupled``, ``decoupled_part1``, ``decoupled_part2``,
@@ -213,7 +214,7 @@ def resource_table(cpl: RunData, dec: RunData) -> dict[str, dict[str, Any]]:
         return row
 
     dofs_c = _int_or_none(cpl.summary.get("dofs", cpl.summary.get("dofs_coupled")))
-    p1 = part(("part1", "part1_correction"), "dofs_part1")
+    p1 = part(("part1", "humerus", "part1_correction"), "dofs_part1")
     p2 = part(("part2", "part2_uncorrected"), "dofs_part2")
     if p1["dofs"] is not None and p2["dofs"] is not None:
         dofs_d = p1["dofs"] + p2["dofs"]

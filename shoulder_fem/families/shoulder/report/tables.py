@@ -284,8 +284,9 @@ def _markdown_uncorrected(report: dict) -> list[str]:
         "",
         "## The compliant part 1 against the rigid one",
         "",
-        "This decoupled run has `part1_bones = compliant`: part 1 solved again at each output "
-        "angle with the scapula's surfaces moved by part 2's displacement, then part 2 again. "
+        "This decoupled run has a compliant part 1 (`part1_bones`): part 1 solved again at each "
+        "output angle with the bones' surfaces moved by their floating-frame displacements (the "
+        "scapula's from part 2, the humerus's unless `compliant-scapula`), then part 2 again. "
         "Its rigid pass (the paper's decoupling) is in the same run (`uncorrected_`); both "
         "against the coupled run: the largest muscle-force error, the peak pressure's, and the "
         "nodal von Mises slope over the scapula.",

@@ -1,36 +1,40 @@
-"""The compliant decoupling (``part1_bones = compliant``): part 1 sees the scapula's compliance.
+"""The compliant decoupling (``part1_bones = compliant``): part 1 sees the bones' compliance.
 
-The paper's part 1 takes the bones as rigid, so the joint and the muscles meet the scapula
-where a rigid one would be. The elastic scapula is not quite there: its glenoid, the muscles'
-origins and its springs' attachments move by part 2's floating-frame displacement ``o``, and
-the coupled method sees that. It is the decoupling's own modelling error (it falls as 1/E of
-the scapula; with the whole model, up to 0.3 % on the muscle forces and 1.4-2.8 % on the peak
-pressure, ``benchmarks/results/compliant_decoupling.json``).
+The paper's part 1 takes the bones as rigid, so the joint and the muscles meet the bones where
+rigid ones would be. The elastic scapula is not quite there: its glenoid, the muscles' origins
+and its springs' attachments move by part 2's floating-frame displacement ``o``, and the
+coupled method sees that; so does the humerus's head under the joint's pressure. It is the
+decoupling's own modelling error (it falls as 1/E of the bones; with the whole model, up to
+0.8 % on the muscle forces and 1.4-2.8 % on the peak pressure,
+``benchmarks/results/compliant_decoupling.json``).
 
 The correction, after the rigid part 1 and its part 2 (whose results stay in the summary as
 the ``uncorrected_`` series, probes and arrays):
 
-1. Each output angle's converged part-1 state is solved again, from that state, with the
+1. The humerus alone, linear elastic in its floating frame, under part 1's loads on it at
+   each output angle (:mod:`.humerus`; not with ``compliant-scapula``): its displacement, in
+   the frame of the best rigid fit of its nodes, where part 1 ties the humerus.
+2. Each output angle's converged part-1 state is solved again, from that state, with the
    scapula's tied nodes (the glenoid cartilage's bone face, the muscles' origins, the cells
    under the muscles' sliding master) and its springs' ends moved by ``o`` in the scapula's
-   frame (:meth:`RigidSystem.set_tie_offsets`): the rigid body is then the deformed scapula
-   moved rigidly, balanced about its deformed shape as the coupled scapula is. The humeral
-   angle is the same (the plate's travel is again the unknown of the angle equation). The
-   static equilibrium at an angle does not depend on the way there (hyperelastic tissues,
+   frame, and the humerus's (the humeral cartilage's bone face, the muscles' insertions, the
+   cells under the head's sliding master, its springs) by its own displacement
+   (:meth:`RigidSystem.set_tie_offsets`): each rigid body is then the deformed bone moved
+   rigidly, balanced about its deformed shape as the coupled bone is. The humeral angle is
+   the same (the plate's travel is again the unknown of the angle equation). The static
+   equilibrium at an angle does not depend on the way there (hyperelastic tissues,
    frictionless contact), so a few Newton iterations from that angle's state do it; the path
    is not stepped again.
-2. Part 2 runs again with these states' forces, each spring's force where part 1 had it
+3. Part 2 runs again with these states' forces, each spring's force where part 1 had it
    (its plate's spring then responds to the plate's motion from ``o``), and the couple by
    which ``o`` turns the loads, ``sum o x f``, given back through the inertia relief (part 2
    balances about the reference shape: without it, that couple alone turns the scapula on its
    suspension, and the plates moved twice ``o``). Part 2 then finds ``o`` again at the plates
    (to 0.2 % at coarse).
 
-One pass: a second one changes nothing (measured at medium). Against the coupled run, 10-60
-deg, the muscle forces are within 0.04 % at coarse, medium and paper and the peak pressure
-within 0.04 / 0.13 / 0.30 % (rigid: up to 0.78 % and 2.8 %), for 11-15 % more CPU than the
-rigid decoupled run. What is left is the humerus's compliance, which part 1 keeps rigid:
-against a coupled run with a 100 x stiffer humerus the peak pressure agrees to 0.018 %.
+One pass: a second one changed nothing (measured at medium with the scapula's offsets). The
+errors against coupled and the cost at each level: README, "A decoupling that sees the bones'
+compliance".
 """
 
 from __future__ import annotations

@@ -82,19 +82,13 @@ def test_a_variant_with_the_runs_own_values_reproduces_its_part2(source, comm_tm
     # sweep.json's maxima are the run's own series (MPa), as the nodal fields above
     peak = _series(source, "scapula_max_von_mises") * 1e-6
     assert np.allclose(rows[1]["von_mises_max_mpa"], peak, rtol=1e-10, atol=0.0)
-    # not meshed at all: every variant reads the source run's scapula (scapula_mesh.xdmf),
-    # a small part of the source's meshing of the whole joint (measured at coarse: 0.58 and
-    # 0.46 CPU s against 4.5)
-    source_mesh = {
-        s["name"]: s["cpu_s"] for s in json.loads((source / "summary.json").read_text())["stages"]
-    }["mesh"]
-    for r in rows:
-        assert r["mesh_cpu_s"] < 0.25 * source_mesh, (rows, source_mesh)
     # one part 2 each: a single factorization, no part 1
     for r in rows:
         summary = json.loads((out / r["folder"] / "summary.json").read_text())
         assert summary["probes"]["part2_factorizations"] == 1
-        # only the scapula was built: the run's DOFs are part 2's (the source's: the joint too)
+        # not meshed at all: every variant reads the source run's scapula
+        # (scapula_mesh.xdmf), so only the scapula was built: the run's DOFs are part 2's
+        # (the source's: the joint too); the mesh stage's CPU is in benchmarks/sweep_cost.py
         assert summary["dofs"] == summary["dofs_part2"], summary["dofs"]
         assert [s["name"] for s in summary["stages"]] == ["mesh", "part2", "decoupled"]
     # a figure with its two panels (88 kB for a coarse sweep), not an empty file

@@ -121,6 +121,7 @@ def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
                 on_step=collect,
             )
         adopt(run.recorder, scratch, replace_plain=False)
+        release_memory()  # the first part 2's solver and spaces are gone
         nodes = {"scapula": X_tied}
         offsets = [{"scapula": o} for o in scapula]
         if model.params.part1_humerus:  # the humerus's deformation too (.humerus)
@@ -130,6 +131,7 @@ def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
             for by_body, o in zip(offsets, humerus, strict=True):
                 by_body["humerus"] = o
         model.meshes.pop("humerus", None)
+        release_memory()
         with run.monitor.stage("part1_correction"):
             corrected, transfer, stop = correct_part1(part1, nodes, offsets, run)
     finally:

@@ -60,6 +60,8 @@ def run_apart(level: str, name: str, folder: Path) -> dict:
     got = s["parameters"].get("part1_bones", "rigid")
     if s["method"] != method or s["level"] != level or (method == "decoupled" and got != wanted):
         raise SystemExit(f"{folder}: holds another run ({s['method']}, {s['level']}, {got})")
+    if name == "compliant" and "humerus" not in [st["name"] for st in s["stages"]]:
+        raise SystemExit(f"{folder}: a compliant run from before the humerus's correction")
     return s
 
 

@@ -180,7 +180,9 @@ class DeformablePart:
                 u[nodes] = body.translation + r @ body.rotation.T - d
         self.u.x.scatter_forward()
 
-    def reaction(self, surface, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    def reaction(
+        self, surface: str | Sequence[str], point: np.ndarray | None = None
+    ) -> tuple[np.ndarray, ...]:
         """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``.
 
         ``surface``: a name, or several (their nodes counted once: surfaces that share an edge).

@@ -8,6 +8,8 @@ they read).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from petsc4py import PETSc
 
@@ -76,7 +78,9 @@ class SystemReports:
         self._fe.assemble_residual()
         return self._fe.F
 
-    def reaction(self, surface, point: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    def reaction(
+        self, surface: str | Sequence[str], point: np.ndarray | None = None
+    ) -> tuple[np.ndarray, ...]:
         """Force (N) and moment about ``point`` (m, default origin, N·m) on fixed ``surface``.
 
         ``surface``: a name, or several (a node they share counted once).

@@ -93,13 +93,14 @@ class NodalValues:
         return self.comm.allreduce(out, op=MPI.SUM)
 
 
-def _lookup(tree: cKDTree, values: np.ndarray):
+def _lookup(tree: cKDTree, values: np.ndarray, body: str):
     """Callable(X) -> ``values`` at the gathered nodes (``tree``'s points) at X."""
 
     def at_nodes(X: np.ndarray) -> np.ndarray:
         dist, idx = tree.query(X)
         if len(dist) and dist.max() > 1e-9:
-            raise ValueError(f"part 1 correction: a scapula node not gathered ({X[0]})")
+            where = X[int(np.argmax(dist))].tolist()
+            raise ValueError(f"part 1 correction: a {body} node not gathered ({where} m)")
         return values[idx]
 
     return at_nodes
@@ -107,11 +108,15 @@ def _lookup(tree: cKDTree, values: np.ndarray):
 
 @dataclass
 class Offsets:
-    """Part 2's floating-frame displacement (m) at one output angle, where part 1 needs it.
+    """A bone's floating-frame displacement (m) at one output angle, where part 1 needs it.
+
+    The scapula's is part 2's; the humerus's that of :mod:`.humerus` (in the frame of the best
+    rigid fit of its nodes).
 
     Attributes:
-        nodes: At part 1's scapula nodes (:meth:`RigidSystem.tied_positions`), (n, 3).
-        springs: At each scapula spring's attachment (its plate's translation), by name.
+        nodes: At part 1's nodes tied to the bone (:meth:`RigidSystem.tied_positions`), (n, 3).
+        springs: At each of the bone's spring attachments, by name (the scapula's: its plate's
+            translation).
     """
 
     nodes: np.ndarray
@@ -175,7 +180,7 @@ def correct_part1(
         nodes: Per body (``scapula``, and ``humerus`` if it is offset too), part 1's nodes
             tied to it (m; :meth:`RigidSystem.tied_positions`, gathered): the rows of each of
             its :attr:`Offsets.nodes`.
-        offsets: Per output angle, {body: part 2's displacement where part 1 needs it}.
+        offsets: Per output angle, {body: its displacement where part 1 needs it}.
         run: The run's context (its recorder gets the corrected series; the rigid ones become
             ``uncorrected_``).
 
@@ -205,7 +210,8 @@ def correct_part1(
             for k, by_body in enumerate(offsets):  # one per output state
                 deg = math.degrees(part1.transfer.angles[k])
                 moved = {
-                    body: (_lookup(trees[body], o.nodes), o.springs) for body, o in by_body.items()
+                    body: (_lookup(trees[body], o.nodes, body), o.springs)
+                    for body, o in by_body.items()
                 }
                 try:
                     its = _resolve(part1, k, moved, log, tolerance)

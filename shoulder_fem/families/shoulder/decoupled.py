@@ -90,7 +90,7 @@ def run_decoupled(model: ShoulderModel, run: RunContext) -> None:
 
 
 def _compliant_part1(model: ShoulderModel, run: RunContext, layout: list[dict]):
-    """Part 1 that sees the scapula's compliance (:mod:`.correction`); (data, transfer)."""
+    """Part 1 that sees the bones' compliance (:mod:`.correction`); (data, transfer)."""
     part1 = Part1(model, run, layout, keep=True)
     try:
         data, transfer = part1.run()
@@ -328,7 +328,9 @@ class Part1:
         self.transfer = Transfer(reference=scapula_ref)
         self.record = _TransferRecorder(V, ft, system, (scapula, humerus), self.transfer)
         #: Part 1's loads on the humerus, for the compliant correction (with ``keep`` only)
-        self.humerus = HumerusRecorder(V, ft, system, humerus, HUMERUS_TIES, p) if keep else None
+        self.humerus = None
+        if keep and p.part1_humerus:
+            self.humerus = HumerusRecorder(V, ft, system, humerus, HUMERUS_TIES, p)
         self.probe = Probe(u, ct_, ft, contact, p, self.volumetric)
         #: Per output angle: the system's snapshot, the angle's target (rad), the
         #: incompressible tissue's multipliers (or None); with ``keep`` only.

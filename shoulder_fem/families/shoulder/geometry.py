@@ -19,6 +19,7 @@ from shoulder_fem.meshes import shoulder as S
 __all__ = [
     "best_fit_rotation",
     "best_fit_twist",
+    "best_rigid_fit",
     "cap_angles",
     "entity_triangles",
     "gather_rows",
@@ -106,7 +107,7 @@ def cap_angles(X: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> np.ndarra
     return np.arccos(np.clip(d @ axis / np.where(r > 0, r, 1.0), -1.0, 1.0))
 
 
-def rigid_fit(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> tuple[np.ndarray, ...]:
+def best_rigid_fit(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> tuple[np.ndarray, ...]:
     """The least-squares rigid fit ``x ~ c + R (X - C)`` over the owned points (collective).
 
     Returns:
@@ -123,7 +124,7 @@ def rigid_fit(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> tuple[np.ndarray,
 
 def best_fit_rotation(X: np.ndarray, x: np.ndarray, comm: MPI.Comm) -> np.ndarray:
     """Rotation of the least-squares rigid fit x ~ c + R (X - C) over the owned points (Kabsch)."""
-    return rigid_fit(X, x, comm)[2]
+    return best_rigid_fit(X, x, comm)[2]
 
 
 def twist_gradient(R: np.ndarray, axis: np.ndarray, h: float = 1e-6) -> np.ndarray:
@@ -146,13 +147,10 @@ def best_fit_twist(
     δx and R → exp(hat ω) R this gives M ω = -Σ Y_i × δx_i with M = Σ Y_i y_iᵀ - (Σ Y_i·y_i) I
     (the mean δx drops out as Σ Y_i = 0). So d twist / d x_i = Y_i × s with s = M⁻ᵀ dtwist/dω.
     """
-    R = best_fit_rotation(X, x, comm)
+    C, c, R = best_rigid_fit(X, x, comm)
     value = twist_angle(R, axis)
     if not with_gradient:
         return value, None
-    n = comm.allreduce(len(X), op=MPI.SUM)
-    C = comm.allreduce(X.sum(axis=0), op=MPI.SUM) / n
-    c = comm.allreduce(x.sum(axis=0), op=MPI.SUM) / n
     Y, y = (X - C) @ R.T, x - c
     H = comm.allreduce(Y.T @ y, op=MPI.SUM)
     M = H - np.trace(H) * np.eye(3)

@@ -7,14 +7,14 @@ gives it the scapula's: the humerus alone, linear elastic in its floating frame 
 as :mod:`.part2` does for the scapula), loaded by part 1's forces on it at each output angle.
 
 Its frame. The humerus hangs on its distal springs, which act on a rigid plate tied to its
-distal section (the coupled method's; :func:`interactions.spring_plates`). Part 2's frame is
-that plate's: the section is fixed (u = 0 there) and its reaction is the springs' force, which
-part 1 balanced against the soft tissues' (the check :attr:`HumerusDeformation.worst`). The
-coupled method measures the humerus's rotation as the best rigid fit of its nodes' motion
-(:func:`geometry.best_fit_rotation`); so that part 1's rigid humerus is turned as that fit is,
-the displacement handed to part 1 is taken in the frame of the best fit of the humerus's
-nodes. A rigid part of the offsets would only re-place the humerus, which part 1's re-solve
-undoes; the fit keeps the humeral angle the coupled one.
+distal section (the coupled method's; :func:`interactions.spring_plates`). This problem's
+frame is that plate's: the section is fixed (u = 0 there) and its reaction is the springs'
+force, which part 1 balanced against the soft tissues' (the check
+:attr:`HumerusDeformation.worst`). The coupled method measures the humerus's rotation as the
+best rigid fit of its nodes' motion (:func:`geometry.best_fit_rotation`); so that part 1's
+rigid humerus is turned as that fit is, the displacement handed to part 1 is taken in the
+frame of the best fit of the humerus's nodes. A rigid part of the offsets would only re-place
+the humerus, which part 1's re-solve undoes; the fit keeps the humeral angle the coupled one.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from shoulder_fem.engine.rigid_system import RigidSystem
 from shoulder_fem.engine.springs import spring_response
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.correction import NodalValues, Offsets
-from shoulder_fem.families.shoulder.geometry import gather_rows, marker_names, rigid_fit
+from shoulder_fem.families.shoulder.geometry import best_rigid_fit, gather_rows, marker_names
 from shoulder_fem.families.shoulder.interactions import DISTAL_SECTION, bone_fields, surfaces
 from shoulder_fem.families.shoulder.model import ShoulderModel
 from shoulder_fem.families.shoulder.part2 import (
@@ -131,8 +131,7 @@ class HumerusDeformation:
         F = vp.internal_power_linear(bone, u, w, dx) + self.inertia.residual(w)
         self.inertia.compile()
         self.nodal = NodalLoads(V, loads.points, "compliant decoupling: the humerus's loads")
-        section = marker_names(DISTAL_SECTION)
-        self.section = section
+        self.section = section = marker_names(DISTAL_SECTION)
         iterative = p.part2_solver == "iterative"
         linear = scaled_gamg_options(rtol=1e-5) if iterative else {}
         self.system = RigidSystem(
@@ -186,7 +185,6 @@ class HumerusDeformation:
             spring_f, spring_m = spring_f - Rk.T @ g, spring_m + np.cross(P, -Rk.T @ g)
         scale = float(np.abs(f).sum()) or 1.0
         lever = float(np.linalg.norm(self.loads_in.points, axis=1).max())
-        self.last_reaction = (force, moment, spring_f, spring_m)
         mismatch = max(
             float(np.linalg.norm(force - spring_f)) / scale,
             float(np.linalg.norm(moment - spring_m)) / (scale * lever),
@@ -204,7 +202,7 @@ class HumerusDeformation:
             (the offsets at ``X`` (m, (n, 3)), {spring name: the offset at its point}).
         """
         x = self._X + self.u.x.array.reshape(-1, 3)[: len(self._X)]
-        C, c, Rf = rigid_fit(self._X, x, self.comm)
+        C, c, Rf = best_rigid_fit(self._X, x, self.comm)
 
         def framed(Y: np.ndarray, uY: np.ndarray) -> np.ndarray:
             return (Y + uY - c) @ Rf - (Y - C)  # R^T (y - c) + C - Y per row

@@ -299,7 +299,10 @@ def _vector_dofs(mesh) -> int:
 
 
 def dofs(model: ShoulderModel) -> int:
-    """Displacement DOFs: the whole joint (coupled), or part 1 + part 2 (decoupled)."""
+    """Displacement DOFs: the whole joint (coupled), or part 1 + part 2 (decoupled).
+
+    With ``part1_bones = compliant``, the humerus's own problem too.
+    """
     return sum(_vector_dofs(m.mesh) for m in model.meshes.values())
 
 

@@ -25,7 +25,7 @@ from shoulder_fem.io.results import Recorder
 from shoulder_fem.meshes import shoulder as S
 
 #: Prefix of the rigid (paper's) decoupling's series, probes and arrays in the results of a
-#: run with ``part1_bones = compliant`` (:mod:`.correction`), which replaces the plain ones.
+#: run with a compliant part 1 (``part1_bones``, :mod:`.correction`), which replaces the plain ones.
 UNCORRECTED = "uncorrected_"
 
 __all__ = [
@@ -176,7 +176,7 @@ def save_results(
         "section_z": float(section),
         "final_angle_deg": float(data["final_angle_deg"]),
     }
-    if UNCORRECTED + "von_mises_series" in data:  # part1_bones = compliant (:mod:`.correction`)
+    if UNCORRECTED + "von_mises_series" in data:  # a compliant part 1 (:mod:`.correction`)
         older = data[UNCORRECTED + "von_mises_series"]
         for key in ("angles_deg", "glenoid_pressure", "glenoid_shear"):
             arrays[UNCORRECTED + key] = np.asarray(data[UNCORRECTED + key], dtype=float)

@@ -80,7 +80,7 @@ def check_source(scene: Scene, level: str, source: dict, where: str) -> None:
     if recorded["part1_bones"] != "rigid":
         raise SceneError(
             f"{where}: its part 1 is part1_bones = {recorded['part1_bones']!r}, which depends "
-            "on the scapula's stiffness (it was corrected by that run's part 2): its loads do "
+            "on the bones' stiffness (it was corrected by that run's part 2): its loads do "
             "not hold for another bone. Sweep from a run with part1_bones = rigid"
         )
     changed = [

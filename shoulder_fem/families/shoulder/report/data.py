@@ -109,7 +109,7 @@ def angle_index(angles: np.ndarray, angle: float) -> int | None:
 
 
 def uncorrected(run: RunData) -> RunData | None:
-    """The paper's rigid decoupling inside a ``part1_bones = compliant`` run, or None.
+    """The paper's rigid decoupling inside a run with a compliant part 1 (``part1_bones``), or None.
 
     Such a run keeps the rigid pass's series, probes and arrays under the prefix
     ``uncorrected_`` (:mod:`shoulder_fem.families.shoulder.correction`): this is the run as if

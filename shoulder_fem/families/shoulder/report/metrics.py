@@ -183,8 +183,8 @@ def _int_or_none(value: Any) -> int | None:
 def resource_table(cpl: RunData, dec: RunData) -> dict[str, dict[str, Any]]:
     """Table II: per method (whole run) and per decoupled part (its stage).
 
-    With a compliant part 1 (``part1_bones``), part 1 with the humerus's deformation and its
-    correction, and part 2's two passes.
+    With a compliant part 1 (``part1_bones``), part 1 with the humerus's deformation (its CPU
+    and its DOFs) and its correction, and part 2's two passes.
 
     Returns:
         A row per column of the table (``coupled``, ``decoupled_part1``, ``decoupled_part2``,
@@ -215,6 +215,9 @@ def resource_table(cpl: RunData, dec: RunData) -> dict[str, dict[str, Any]]:
 
     dofs_c = _int_or_none(cpl.summary.get("dofs", cpl.summary.get("dofs_coupled")))
     p1 = part(("part1", "humerus", "part1_correction"), "dofs_part1")
+    humerus = _int_or_none(dec.summary.get("dofs_humerus"))  # a compliant part 1's own solve
+    if p1["dofs"] is not None and humerus is not None:
+        p1["dofs"] += humerus
     p2 = part(("part2", "part2_uncorrected"), "dofs_part2")
     if p1["dofs"] is not None and p2["dofs"] is not None:
         dofs_d = p1["dofs"] + p2["dofs"]

@@ -12,16 +12,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import dolfinx
 import numpy as np
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.engine.springs import GROUND, Spring
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder import mesh_store
 from shoulder_fem.families.shoulder.correction import NodalValues, Offsets, adopt, correct_part1
-from shoulder_fem.families.shoulder.geometry import gather_rows, patch_centroid, surface_centroid
+from shoulder_fem.families.shoulder.geometry import patch_centroid, surface_centroid
 from shoulder_fem.families.shoulder.humerus import HumerusRecorder, humerus_offsets
 from shoulder_fem.families.shoulder.interactions import (
     joint_contact,
@@ -38,7 +38,7 @@ from shoulder_fem.families.shoulder.model import (
     scapula_at,
 )
 from shoulder_fem.families.shoulder.outputs import UNCORRECTED, save_npz, save_results, unknowns
-from shoulder_fem.families.shoulder.part2 import run_part2
+from shoulder_fem.families.shoulder.part2 import SurfaceForces, run_part2
 from shoulder_fem.families.shoulder.reuse import load_part1
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
@@ -222,24 +222,22 @@ class _TransferRecorder:
     ):
         self.system, self.transfer = system, transfer
         self.scapula, self.humerus = bones
-        self.comm = V.mesh.comm
-        n_owned = V.dofmap.index_map.size_local
         # and the master of the muscle-scapula contact (muscle_contact = bones): the muscles'
         # pressure on the scapula
         tags = [S.MARKERS[n].id for n in SCAPULA_LOAD_SURFACES] + [S.SCAPULA_CONTACT_SURFACE.id]
-        load_dofs = np.unique(
-            np.concatenate([dolfinx.fem.locate_dofs_topological(V, 2, ft.find(t)) for t in tags])
-        )
-        self.load_dofs = load_dofs[load_dofs < n_owned]
-        self.X_load = V.tabulate_dof_coordinates()[self.load_dofs]
+        self.loads = SurfaceForces(V, ft, tags)
+        transfer.points = self.loads.points
 
-    def __call__(self, target: float) -> None:
-        """Record at output angle ``target`` (rad) (collective)."""
+    def __call__(self, target: float, residual: PETSc.Vec | None = None) -> None:
+        """Record at output angle ``target`` (rad) (collective).
+
+        ``residual``: the system's FE residual at this state, if already assembled.
+        """
         tr = self.transfer
-        Fv = self.system.assembled_residual()
-        f = -Fv.array_r.reshape(-1, 3)[self.load_dofs]
+        if residual is None:
+            residual = self.system.assembled_residual()
         tr.angles.append(target)
-        tr.forces.append(gather_rows(f, self.comm))
+        tr.forces.append(self.loads(residual))
         tr.translation.append(self.scapula.translation.copy())
         tr.rotation.append(self.scapula.rotation.copy())
         tr.humerus_rotation.append(self.humerus.rotation.copy())
@@ -330,7 +328,7 @@ class Part1:
         #: Part 1's loads on the humerus, for the compliant correction (with ``keep`` only)
         self.humerus = None
         if keep and p.part1_humerus:
-            self.humerus = HumerusRecorder(V, ft, system, humerus, HUMERUS_TIES, p)
+            self.humerus = HumerusRecorder(V, ft, humerus, HUMERUS_TIES, p)
         self.probe = Probe(u, ct_, ft, contact, p, self.volumetric)
         #: Per output angle: the system's snapshot, the angle's target (rad), the
         #: incompressible tissue's multipliers (or None); with ``keep`` only.
@@ -350,9 +348,10 @@ class Part1:
         )
 
     def _on_output(self, target: float) -> None:
-        self.record(target)
+        residual = self.system.assembled_residual()  # the loads on both bones
+        self.record(target, residual)
         if self.humerus is not None:
-            self.humerus(target)
+            self.humerus(target, residual)
         if self.keep:
             vol = self.volumetric
             multipliers = None if vol is None else vol.multiplier.copy()
@@ -368,7 +367,6 @@ class Part1:
         run = self.run_context
         data = run_steps(self.model, run, self.job)
         run.recorder.extra("dofs_part1", unknowns(self.system))
-        self.transfer.points = gather_rows(self.record.X_load, self.comm)
         self.transfer.save(run.fields.parent / "transfer.npz", self.comm)
         if not self.keep:
             self.destroy()

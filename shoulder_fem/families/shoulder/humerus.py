@@ -21,26 +21,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import dolfinx
 import numpy as np
-import ufl
 
-from shoulder_fem.engine.gamg import scaled_gamg_options
 from shoulder_fem.engine.rigid_system import RigidSystem
 from shoulder_fem.engine.springs import spring_response
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.correction import NodalValues, Offsets
-from shoulder_fem.families.shoulder.geometry import best_rigid_fit, gather_rows, marker_names
-from shoulder_fem.families.shoulder.interactions import DISTAL_SECTION, bone_fields, surfaces
+from shoulder_fem.families.shoulder.geometry import best_rigid_fit, marker_names
+from shoulder_fem.families.shoulder.interactions import DISTAL_SECTION, surfaces
 from shoulder_fem.families.shoulder.model import ShoulderModel
 from shoulder_fem.families.shoulder.part2 import (
-    CHORD_OPTIONS,
-    FrameInertia,
+    FloatingBone,
     NodalLoads,
-    finite_differences,
+    SurfaceForces,
+    solver_options,
 )
-from shoulder_fem.forms import materials
-from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.meshes import shoulder as S
 
 __all__ = ["HumerusDeformation", "HumerusLoads", "HumerusRecorder", "humerus_offsets"]
@@ -69,32 +64,25 @@ class HumerusLoads:
 class HumerusRecorder:
     """Records part 1's loads on the humerus into :class:`HumerusLoads` at each output."""
 
-    def __init__(self, V, ft, system: RigidSystem, humerus, tied: tuple, params):
+    def __init__(self, V, ft, humerus, tied: tuple, params):
         """``tied``: the surfaces tied to the humerus, which its soft tissues load."""
-        self.system, self.humerus = system, humerus
-        self.comm = V.mesh.comm
-        self.loads = HumerusLoads()
-        n_owned = V.dofmap.index_map.size_local
+        self.humerus = humerus
         tags = [S.MARKERS[n].id for n in tied]
         if params.humeral_head_contact:  # the muscles' pressure on the head
             tags.append(S.HUMERUS_HEAD_SURFACE.id)
-        dofs = np.unique(
-            np.concatenate([dolfinx.fem.locate_dofs_topological(V, 2, ft.find(t)) for t in tags])
-        )
-        self.dofs = dofs[dofs < n_owned]
-        self.loads.points = gather_rows(V.tabulate_dof_coordinates()[self.dofs], self.comm)
+        self.forces = SurfaceForces(V, ft, tags)
+        self.loads = HumerusLoads(points=self.forces.points)
 
-    def __call__(self, target: float) -> None:
-        """Record at output angle ``target`` (rad) (collective)."""
+    def __call__(self, target: float, residual) -> None:
+        """Record at output angle ``target`` (rad) from part 1's FE ``residual`` (collective)."""
         loads = self.loads
-        f = -self.system.assembled_residual().array_r.reshape(-1, 3)[self.dofs]
-        loads.forces.append(gather_rows(f, self.comm))
+        loads.forces.append(self.forces(residual))
         loads.translation.append(self.humerus.translation.copy())
         loads.rotation.append(self.humerus.rotation.copy())
         loads.angles.append(target)
 
 
-class HumerusDeformation:
+class HumerusDeformation(FloatingBone):
     """The humerus alone, linear elastic in its floating frame, at part 1's outputs (collective).
 
     Args:
@@ -103,8 +91,6 @@ class HumerusDeformation:
         loads: Part 1's loads on the humerus (:class:`HumerusRecorder`).
         springs: Part 1's springs on the humerus (their forces at the recorded poses are the
             check of the fixed section's reaction; their points lie on that section).
-        duration: The rotation's duration (s) and its final angle (rad), which time the outputs
-            for the frame's inertia.
     """
 
     def __init__(
@@ -113,44 +99,31 @@ class HumerusDeformation:
         run: RunContext,
         loads: HumerusLoads,
         springs: list,
-        duration: tuple[float, float],
     ):
         p = model.params
-        hm = model.meshes["humerus"]
-        mesh, ct_, ft = hm.mesh, hm.cell_tags, hm.facet_tags
-        self.comm = mesh.comm
+        ref = np.zeros(3)  # part 1's humerus turns about the origin, the articular centre
+        super().__init__(
+            model, "humerus", ref, loads.angles, loads.translation, loads.rotation,
+            name="humerus_displacement",
+        )  # fmt: skip
+        V = self.V
         self.loads_in, self.springs = loads, springs
-        V = self.V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
-        u = self.u = dolfinx.fem.Function(V, name="humerus_displacement")
-        self.u_prev = dolfinx.fem.Function(V)
-        w = ufl.TestFunction(V)
-        dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
-        rho, E = bone_fields(mesh, ct_, model.image, p)
-        bone = materials.LinearElastic(E, materials.BONE_NU)
-        self.inertia = FrameInertia(mesh, rho, u, self.u_prev, np.zeros(3), dx)
-        F = vp.internal_power_linear(bone, u, w, dx) + self.inertia.residual(w)
-        self.inertia.compile()
         self.nodal = NodalLoads(V, loads.points, "compliant decoupling: the humerus's loads")
         self.section = section = marker_names(DISTAL_SECTION)
-        iterative = p.part2_solver == "iterative"
-        linear = scaled_gamg_options(rtol=1e-5) if iterative else {}
+        options, iterative = solver_options(p, run)
         self.system = RigidSystem(
             [],
-            u=u,
-            residual=F,
-            surfaces=surfaces(ft, section),
+            u=self.u,
+            residual=self.residual,
+            surfaces=surfaces(self.ft, section),
             fixed=section,
             name="shoulder_humerus",
-            options=CHORD_OPTIONS | linear | dict(run.options or {}),
+            options=options,
             form_compiler_params=p.quadrature(),
             contact=self.nodal,
             linear_ties=True,
             near_nullspace=iterative,
         )
-        angles = np.asarray(loads.angles)
-        self.times = angles / duration[1] * duration[0]
-        self.T, self.R = np.asarray(loads.translation), np.asarray(loads.rotation)
-        _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
         n_owned = V.dofmap.index_map.size_local
         self._X = V.tabulate_dof_coordinates()[:n_owned]
         #: The largest mismatch of the fixed section's reaction and part 1's spring forces
@@ -160,15 +133,10 @@ class HumerusDeformation:
 
     def solve(self, k: int) -> None:
         """The humerus's displacement at output ``k`` (floating frame of its distal section)."""
-        Rk, inertia = self.R[k], self.inertia
         f = np.asarray(self.loads_in.forces[k])
-        self.nodal.forces[:] = f @ Rk  # R^T f per row
-        inertia.a0.value[:] = Rk.T @ self.acc[k]
-        inertia.om.value[:] = self.omega[k]
-        inertia.dom.value[:] = self.domega[k]
-        dt = self.times[k] - self.times[k - 1] if k > 0 else 0.0
-        inertia.inv_dt.value = 1.0 / dt if dt > 0 else 0.0
-        inertia.relieve()
+        self.nodal.forces[:] = f @ self.R[k]  # R^T f per row
+        self.frame_motion(k)
+        self.inertia.relieve()
         angle = np.degrees(self.loads_in.angles[k])
         self.iterations += self.system.solve(step=f"humerus {angle:.0f} deg")
         self.u_prev.x.array[:] = self.u.x.array
@@ -232,10 +200,9 @@ def humerus_offsets(model: ShoulderModel, run: RunContext, part1, X: np.ndarray)
     Returns:
         Per output angle, the offsets of those nodes and of the humerus's springs.
     """
-    p, rec = model.params, run.recorder
+    rec = run.recorder
     springs = [sp for sp in part1.springs if sp.body_a == "humerus"]
-    duration = (p.rotation_duration, p.final_angle)
-    hum = HumerusDeformation(model, run, part1.humerus.loads, springs, duration)
+    hum = HumerusDeformation(model, run, part1.humerus.loads, springs)
     try:
         probe = NodalValues(hum.V, X, "part 1's humerus nodes")
         out = []

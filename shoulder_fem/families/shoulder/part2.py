@@ -26,7 +26,7 @@ from shoulder_fem.engine.so3 import hat
 from shoulder_fem.engine.solver import StepperStats
 from shoulder_fem.engine.springs import GROUND, Spring, spring_response
 from shoulder_fem.families.base import RunContext
-from shoulder_fem.families.shoulder.geometry import patch_centroid
+from shoulder_fem.families.shoulder.geometry import gather_rows, patch_centroid
 from shoulder_fem.families.shoulder.interactions import bone_fields, surfaces
 from shoulder_fem.families.shoulder.measures import VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel
@@ -42,11 +42,14 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CHORD_OPTIONS",
+    "FloatingBone",
     "FrameInertia",
     "NodalLoads",
+    "SurfaceForces",
     "finite_differences",
     "owned_nodes",
     "run_part2",
+    "solver_options",
 ]
 
 #: Newton settings of part 2: the Jacobian of the first solve is kept (chord iterations).
@@ -88,6 +91,31 @@ def owned_nodes(V, points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarra
             f"(e.g. {points[missing[0]].tolist()} m)"
         )
     return mine, idx[mine]
+
+
+class SurfaceForces:
+    """The nodal forces part 1's soft tissues apply on given surfaces of a bone (collective).
+
+    The loads that :class:`NodalLoads` gives a bone's floating-frame problem: minus part 1's
+    FE residual at the P2 nodes of the facets tagged ``tags``.
+
+    Attributes:
+        points: The nodes (m, reference geometry), gathered on every rank.
+    """
+
+    def __init__(self, V, facet_tags, tags: list[int]):
+        self.comm = V.mesh.comm
+        n_owned = V.dofmap.index_map.size_local
+        facets = [facet_tags.find(t) for t in tags]
+        dofs = np.unique(
+            np.concatenate([dolfinx.fem.locate_dofs_topological(V, 2, f) for f in facets])
+        )
+        self.dofs = dofs[dofs < n_owned]
+        self.points = gather_rows(V.tabulate_dof_coordinates()[self.dofs], self.comm)
+
+    def __call__(self, residual: PETSc.Vec) -> np.ndarray:
+        """The forces (N, (n, 3), world frame) at :attr:`points` under ``residual``, gathered."""
+        return gather_rows(-residual.array_r.reshape(-1, 3)[self.dofs], self.comm)
 
 
 class NodalLoads:
@@ -215,6 +243,74 @@ class FrameInertia:
         return self._assemble(self.coriolis_forms)
 
 
+class FloatingBone:
+    """One bone alone, linear elastic in its floating frame (paper eq. 13) (collective).
+
+    Its P2 displacement ``u`` (floating-frame components), the frame's inertia about ``ref``
+    with its relief (:class:`FrameInertia`), the residual, and the rates of part 1's recorded
+    rigid motion at the output angles (the rotation takes ``rotation_duration`` to reach
+    ``final_angle``). Part 2's scapula (:class:`_Part2`) and the compliant decoupling's humerus
+    (:mod:`.humerus`) are two.
+
+    Args:
+        model: The decoupled model; ``variant`` names the bone's mesh in it.
+        ref: The floating frame's reference point (m).
+        angles: The output angles (rad).
+        translation: Per output, the bone's rigid translation (m).
+        rotation: Per output, its rigid rotation (3 x 3).
+        name: The displacement's name in the output fields.
+    """
+
+    def __init__(
+        self,
+        model: ShoulderModel,
+        variant: str,
+        ref: np.ndarray,
+        angles,
+        translation,
+        rotation,
+        name: str = "displacement",
+    ):
+        p = model.params
+        bm = model.meshes[variant]
+        self.mesh, self.cell_tags, self.ft = mesh, ct_, _ = bm.mesh, bm.cell_tags, bm.facet_tags
+        self.comm = mesh.comm
+        V = self.V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+        u = self.u = dolfinx.fem.Function(V, name=name)
+        self.u_prev = dolfinx.fem.Function(V)
+        w = ufl.TestFunction(V)
+        dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
+        rho, E = bone_fields(mesh, ct_, model.image, p)
+        self.law = materials.LinearElastic(E, materials.BONE_NU)
+        self.inertia = FrameInertia(mesh, rho, u, self.u_prev, ref, dx)
+        self.residual = vp.internal_power_linear(self.law, u, w, dx) + self.inertia.residual(w)
+        self.inertia.compile()
+        self.angles = np.asarray(angles)
+        self.times = self.angles / p.final_angle * p.rotation_duration
+        self.T, self.R = np.asarray(translation), np.asarray(rotation)
+        _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
+
+    def frame_motion(self, k: int) -> None:
+        """Set the frame's acceleration, Ω, dΩ/dt and the Coriolis rate of output ``k``."""
+        inertia = self.inertia
+        inertia.a0.value[:] = self.R[k].T @ self.acc[k]
+        inertia.om.value[:] = self.omega[k]
+        inertia.dom.value[:] = self.domega[k]
+        inertia.inv_dt.value = 1.0 / (self.times[k] - self.times[k - 1]) if k > 0 else 0.0
+
+
+def solver_options(params, run: RunContext) -> tuple[dict, bool]:
+    """A floating bone's SNES options, and whether they are iterative.
+
+    Chord iterations; CG + GAMG with ``part2_solver = iterative``, else LU.
+    """
+    iterative = params.part2_solver == "iterative"
+    # CG to 1e-5 per chord step (the SNES still converges to its own 1e-8): measured at
+    # paper, 21 chord steps and 729 CG iterations against 18 and 1 105 at 1e-8 (8.2 s, 11.0 s)
+    linear = scaled_gamg_options(rtol=1e-5) if iterative else {}
+    return CHORD_OPTIONS | linear | dict(run.options or {}), iterative
+
+
 def _suspension(
     mesh, ft, layout: list[dict], length: float
 ) -> tuple[list[RigidBody], list[Tie], list[Spring], list[Spring]]:
@@ -248,7 +344,7 @@ def _suspension(
     return bodies, ties, springs, world
 
 
-class _Part2:
+class _Part2(FloatingBone):
     """The scapula's floating-frame problem over part 1's output angles (collective)."""
 
     def __init__(
@@ -261,49 +357,30 @@ class _Part2:
         write_fields: bool = True,
     ):
         p = model.params
-        sm = model.meshes["scapula"]
-        self.mesh, ct_, self.ft = mesh, ct_, ft = sm.mesh, sm.cell_tags, sm.facet_tags
-        self.comm = mesh.comm
+        tr = transfer
+        super().__init__(model, "scapula", tr.reference, tr.angles, tr.translation, tr.rotation)
+        mesh, ct_, ft, V, u = self.mesh, self.cell_tags, self.ft, self.V, self.u
         self.recorder = run.recorder if recorder is None else recorder
         self.transfer, self.ref = transfer, transfer.reference
-        V = self.V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
-        u = self.u = dolfinx.fem.Function(V, name="displacement")
-        self.u_prev = dolfinx.fem.Function(V)
-        w = ufl.TestFunction(V)
-        dx = ufl.Measure("dx", domain=mesh, subdomain_data=ct_, metadata=p.quadrature())
-        rho, E = bone_fields(mesh, ct_, model.image, p)
-        bone = materials.LinearElastic(E, materials.BONE_NU)
-        self.inertia = FrameInertia(mesh, rho, u, self.u_prev, self.ref, dx)
-        F = vp.internal_power_linear(bone, u, w, dx)
-        F += self.inertia.residual(w)
-        self.inertia.compile()
         self.loads = NodalLoads(V, transfer.points)
         self.bodies, ties, springs, self.world = _suspension(mesh, ft, layout, p.spring_length)
         self.plate_springs = springs
-        iterative = p.part2_solver == "iterative"
-        # CG to 1e-5 per chord step (the SNES still converges to its own 1e-8): measured at
-        # paper, 21 chord steps and 729 CG iterations against 18 and 1 105 at 1e-8 (8.2 s, 11.0 s)
-        linear = scaled_gamg_options(rtol=1e-5) if iterative else {}
+        options, iterative = solver_options(p, run)
         self.system = RigidSystem(
             self.bodies,
             springs,
             u=u,
-            residual=F,
+            residual=self.residual,
             surfaces=surfaces(ft, [t.surface for t in ties]),
             ties=ties,
             name="shoulder_part2",
-            options=CHORD_OPTIONS | linear | dict(run.options or {}),
+            options=options,
             form_compiler_params=p.quadrature(),
             contact=self.loads,
             linear_ties=True,
             near_nullspace=iterative,
         )
-        self.stress_vm = VonMises(mesh, ct_, bone.stress(ufl.sym(ufl.grad(u))), p.nodal_stress)
-        self.angles = np.asarray(transfer.angles)
-        self.times = self.angles / p.final_angle * p.rotation_duration
-        self.T = np.asarray(transfer.translation)
-        self.R = np.asarray(transfer.rotation)
-        _, self.acc, self.omega, self.domega = finite_differences(self.times, self.T, self.R)
+        self.stress_vm = VonMises(mesh, ct_, self.law.stress(ufl.sym(ufl.grad(u))), p.nodal_stress)
         self.writer = (
             FieldWriter(self.comm, mesh, run.fields / "part2.xdmf") if write_fields else None
         )
@@ -367,13 +444,9 @@ class _Part2:
         """Solve at output ``k`` (angle ``target`` rad) and record its outputs."""
         inertia, rec, comm = self.inertia, self.recorder, self.comm
         x = math.degrees(target)
-        Rk = self.R[k]
         f = np.asarray(self.transfer.forces[k])
         fs, ms = self._load(k, f)
-        inertia.a0.value[:] = Rk.T @ self.acc[k]
-        inertia.om.value[:] = self.omega[k]
-        inertia.dom.value[:] = self.domega[k]
-        inertia.inv_dt.value = 1.0 / (self.times[k] - self.times[k - 1]) if k > 0 else 0.0
+        self.frame_motion(k)
         resultant = inertia.relieve(self.offset_couple)
         self.iterations += self.system.solve(step=f"part2 {x:.0f} deg")
         # equilibrium of the transferred loads with the springs at the recorded rigid pose

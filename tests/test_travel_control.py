@@ -19,6 +19,7 @@ from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.rigid_system.guard import TrialGuard
 from shoulder_fem.engine.solver import ConvergenceError, SolveStats, set_from_options
 from shoulder_fem.engine.springs import Spring
+from shoulder_fem.engine.stagnation import StagnationTest
 
 pytestmark = pytest.mark.mpi
 
@@ -200,3 +201,62 @@ def test_mumps_options_reach_the_factorization_and_leave_with_the_solver():
     assert not [k for k in PETSc.Options().getAll() if k.startswith("mumps_late_")]
     for obj in (ksp, A, b, x):
         obj.destroy()
+
+
+def _scalar_snes(f, df, x0: float, custom: bool, max_it: int = 40):
+    """A 1-unknown SNES (full Newton steps, LU) on each rank: (reason, iterations, x, test)."""
+    snes = PETSc.SNES().create(PETSc.COMM_SELF)
+    x = PETSc.Vec().createSeq(1)
+    r = x.duplicate()
+    J = PETSc.Mat().createDense([1, 1], comm=PETSc.COMM_SELF)
+    J.setUp()
+
+    def residual(_, xv, rv):
+        rv[0] = f(xv[0])
+        rv.assemble()
+
+    def jacobian(_, xv, A, P):
+        P[0, 0] = df(xv[0])
+        P.assemble()
+
+    snes.setFunction(residual, r)
+    snes.setJacobian(jacobian, J)
+    snes.setOptionsPrefix("stagnation_test_")
+    opts = {"snes_linesearch_type": "basic", "snes_max_it": max_it, "ksp_type": "preonly"}
+    set_from_options(snes, opts | {"pc_type": "lu", "snes_rtol": 1e-12, "snes_atol": 1e-14})
+    test = StagnationTest() if custom else None
+    if custom:
+        snes.setConvergenceTest(test)
+    x[0] = x0
+    snes.solve(None, x)
+    out = snes.getConvergedReason(), snes.getIterationNumber(), float(x[0]), test
+    for obj in (snes, x, r, J):
+        obj.destroy()
+    return out
+
+
+def test_the_stagnation_test_is_petscs_default_and_stops_a_plateau():
+    """:class:`StagnationTest` gives PETSc's default test's reason, iterations and solution where
+    Newton converges: x^3 = 2 from 1 (quadratically), from the root (|F| < atol at once), and
+    with a tangent twice too stiff (linearly, |F| halving per iteration). With a tangent 1e6
+    too stiff (|F| falls by 1e-6 per iteration: a plateau) PETSc's test runs to max_it, the
+    stagnation test stops after 5 iterations within 0.1 %, as DIVERGED_LOCAL_MIN, and says so;
+    |F| > divtol |F_0| diverges as PETSc's does."""
+    cube = (lambda v: v**3 - 2.0, lambda v: 3.0 * v**2)
+    half = (cube[0], lambda v: 6.0 * v**2)
+    for problem, x0 in ((cube, 1.0), (cube, 2.0 ** (1.0 / 3.0)), (half, 1.0)):
+        default = _scalar_snes(*problem, x0, custom=False)
+        ours = _scalar_snes(*problem, x0, custom=True)
+        assert default[0] > 0 and ours[:2] == default[:2], (default, ours)
+        assert ours[2] == pytest.approx(2.0 ** (1.0 / 3.0), rel=1e-6) and ours[2] == default[2]
+    plateau = (lambda v: v + 5.0, lambda v: 1e6)
+    reason, its, _, _ = _scalar_snes(*plateau, 0.0, custom=False)
+    assert reason == PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT and its == 40
+    reason, its, _, test = _scalar_snes(*plateau, 0.0, custom=True)
+    assert reason == PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN and its == 5, its
+    assert test.stagnated == its and "stagnated within 0.1 % over 5 iterations" in test.describe()
+    test = StagnationTest(divtol=10.0)
+    snes = PETSc.SNES().create(PETSc.COMM_SELF)
+    assert test(snes, 0, (1.0, 0.0, 2.0)) == PETSc.SNES.ConvergedReason.ITERATING
+    assert test(snes, 1, (1.0, 1.0, 20.5)) == PETSc.SNES.ConvergedReason.DIVERGED_DTOL
+    snes.destroy()

@@ -87,6 +87,11 @@ def set_user_options(options: Mapping[str, object] | None) -> None:
         _USER_OPTIONS[str(key).lstrip("-")] = "" if value is None else str(value)
 
 
+def user_options() -> dict[str, str]:
+    """The user's PETSc options (:func:`set_user_options`), a copy: name without "-" -> value."""
+    return dict(_USER_OPTIONS)
+
+
 def clear_user_options() -> None:
     """Take the user's options out of PETSc's database."""
     db = PETSc.Options()

@@ -42,6 +42,7 @@ from shoulder_fem.engine.solver import (
     unique_prefix,
 )
 from shoulder_fem.engine.springs import Spring
+from shoulder_fem.engine.stagnation import StagnationTest
 
 logger = logging.getLogger(__name__)
 
@@ -66,6 +67,10 @@ def create_snes(
     snes.setFunction(guard.residual, problem.r)
     snes.setJacobian(problem.jacobian, problem.J, problem.J)
     set_from_options(snes, opts)
+    stagnation = StagnationTest()
+    stagnation.track(opts)
+    snes.setConvergenceTest(stagnation)
+    snes.setAttr("stagnation_test", stagnation)
     snes.setLineSearchPreCheck(guard)
     snes.setConvergenceHistory(length=200, reset=True)
     return snes, str(opts["snes_linesearch_type"])
@@ -100,6 +105,9 @@ def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, 
         # with INFOG(1) = -3): the next solve factorizes afresh.
         snes.getKSP().getPC().reset()
         why = petsc_error or failure_reason(reason, snes.getKSP())
+        stagnation = snes.getAttr("stagnation_test")
+        if not petsc_error and stagnation is not None:
+            why += stagnation.describe()
         raise ConvergenceError(step, why, its, prefix)
     logger.debug("%s %s: %d Newton iterations %s", prefix, step, its, history)
     return its
@@ -257,6 +265,7 @@ class RigidSystem(SystemReports, ControlledSystem, OffsetTies):
     def set_options(self, options: Mapping[str, object]) -> None:
         """Change SNES options between solves (e.g. ``snes_max_it``, the line search type)."""
         set_from_options(self.snes, options, ksp=False)
+        self.snes.getAttr("stagnation_test").track(options)
         self.snes.setLineSearchPreCheck(self._guard)  # the line search keeps its pre-check
         if "snes_linesearch_type" in options:
             self._linesearch = str(options["snes_linesearch_type"])

@@ -72,7 +72,7 @@ def solve_with_fallback(
     except ConvergenceError as err:
         original = system.linesearch
         if original == FALLBACK_LINESEARCH or not any(
-            why in err.reason for why in ("MAX_IT", "DTOL")
+            why in err.reason for why in ("MAX_IT", "DTOL", "LOCAL_MIN")
         ):
             raise  # a failed factorization: the step is too long
         logger.info("%s: retried with the %s line search", step, FALLBACK_LINESEARCH)

@@ -175,8 +175,8 @@ def test_coarse_is_small_enough(deformable):
     assert totals["dofs"] < 15_000
 
 
-def test_element_quality(deformable):
-    mesh = deformable.mesh
+def _volumes_and_quality(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Every rank's cells' volumes (local) and all cells' mean-ratio quality (gathered)."""
     x = mesh.geometry.x
     n = mesh.topology.index_map(3).size_local
     cells = np.array([mesh.geometry.dofmap.links(c) for c in range(n)])
@@ -185,7 +185,11 @@ def test_element_quality(deformable):
     vol = np.abs(np.einsum("ij,ij->i", e[0], np.cross(e[1], e[2]))) / 6.0
     l_rms = np.sqrt(np.mean([np.sum(v**2, axis=1) for v in e], axis=0))
     quality = 6 * np.sqrt(2) * vol / l_rms**3
-    q_all = np.concatenate(mesh.comm.allgather(quality))
+    return vol, np.concatenate(mesh.comm.allgather(quality))
+
+
+def test_element_quality(deformable):
+    vol, q_all = _volumes_and_quality(deformable.mesh)
     assert np.all(vol > 0)
     assert np.min(q_all) > 0.02
     assert np.quantile(q_all, 0.01) > 0.05
@@ -396,6 +400,36 @@ def test_every_group_present_at_finer_levels(geometry, level):
     e = x[cells[:, 1:]] - x[cells[:, :1]]
     assert np.all(np.linalg.det(e) != 0.0)
     assert len(np.unique(np.sign(np.linalg.det(e)))) == 1  # one orientation: none inverted
+
+
+def test_the_anatomical_cap_option_turns_the_footprints_and_meshes(geometry):
+    """Issue 20, item 4 (an option): the cartilage to 78 deg, a head height of 24 (1 - cos 78
+    deg) = 19.0 mm (Iannotti 1992: 19 +/- 2.4 mm). With the footprints unturned (the defaults)
+    the subscapularis footprint's corner lies at 77 deg, on that cap, and is refused naming it;
+    turned as ``ANATOMICAL_CAP`` turns them, the geometry is accepted and meshes at coarse
+    within the quality bounds of the default mesh, its cartilage the shell cut at 78 deg."""
+    scene = load_scene("shoulder-internal-rotation")
+    cap_only = scene.with_overrides(["humeral_cartilage_angle=78deg"])
+    with pytest.raises(ValueError, match=r"subscapularis_insertion.*\(77 deg from the articular"):
+        S.geometry_from_values(cap_only.values()).validate()
+    anatomical = S.geometry_from_values(scene.with_overrides(list(S.ANATOMICAL_CAP)).values())
+    height = anatomical.head_radius * (1 - np.cos(anatomical.humeral_cartilage_angle))
+    assert height == pytest.approx(19.0 * MM, abs=0.05 * MM)
+    assert np.degrees(anatomical.subscapularis_insertion_turn) == pytest.approx(-15.0)
+    with pytest.raises(ValueError, match="subscapularis_insertion_turn = 95 deg"):
+        replace(anatomical, subscapularis_insertion_turn=np.radians(95.0)).validate()
+    comm = MPI.COMM_WORLD
+    sm = S.build_shoulder_mesh(comm, anatomical, _coarse_sizes(), "deformable")
+    vol, q_all = _volumes_and_quality(sm.mesh)
+    assert np.all(vol > 0) and np.min(q_all) > 0.02 and np.quantile(q_all, 0.01) > 0.05
+    # the cartilage: the shell cut at 78 deg (two spherical caps, as for the default mesh
+    # above), untouched by the turned tuberosity blocks
+    rb, rh = anatomical.humeral_bone_radius, anatomical.head_radius
+    c = rh * np.cos(anatomical.humeral_cartilage_angle)
+    cap = np.pi / 3 * ((rh - c) ** 2 * (2 * rh + c) - (rb - c) ** 2 * (2 * rb + c))
+    volume = _measure(sm.mesh, sm.cell_tags, S.HUMERAL_CARTILAGE.id, "dx")
+    assert volume == pytest.approx(cap, rel=0.08)
+    assert geometry.humeral_cartilage_angle == pytest.approx(np.radians(70.0))  # the default
 
 
 def test_head_radius_accepts_the_range_its_doc_states():

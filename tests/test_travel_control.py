@@ -255,6 +255,16 @@ def test_the_stagnation_test_is_petscs_default_and_stops_a_plateau():
     reason, its, _, test = _scalar_snes(*plateau, 0.0, custom=True)
     assert reason == PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN and its == 5, its
     assert test.stagnated == its and "stagnated within 0.1 % over 5 iterations" in test.describe()
+    # Newton on x^3 - 2x + 2 from 0 cycles 0, 1, 0, 1, ... (|F| = 2, 1, 2, 1, ...): the
+    # default test runs to max_it, the stagnation test stops once 6 norms have repeated those
+    # two iterations before them (the 8th norm, iteration 7)
+    cycle = (lambda v: v**3 - 2.0 * v + 2.0, lambda v: 3.0 * v**2 - 2.0)
+    reason, its, _, _ = _scalar_snes(*cycle, 0.0, custom=False)
+    assert reason == PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT and its == 40
+    reason, its, x, test = _scalar_snes(*cycle, 0.0, custom=True)
+    assert reason == PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN and its == 7, its
+    assert test.cycled and x in (0.0, 1.0)
+    assert "cycled between 1 and 2" in test.describe(), test.describe()
     test = StagnationTest(divtol=10.0)
     snes = PETSc.SNES().create(PETSc.COMM_SELF)
     assert test(snes, 0, (1.0, 0.0, 2.0)) == PETSc.SNES.ConvergedReason.ITERATING

@@ -263,8 +263,17 @@ def test_the_stagnation_test_is_petscs_default_and_stops_a_plateau():
     assert reason == PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT and its == 40
     reason, its, x, test = _scalar_snes(*cycle, 0.0, custom=True)
     assert reason == PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN and its == 7, its
-    assert test.cycled and x in (0.0, 1.0)
-    assert "cycled between 1 and 2" in test.describe(), test.describe()
+    assert test.cycled == 2 and x in (0.0, 1.0)
+    assert "cycled with period 2 between 1 and 2" in test.describe(), test.describe()
+    # a longer cycle (the shoulder's part 1: |F| falling linearly, then reset by the contact):
+    # norms 8, 4, 2, 1 repeated stop once 6 norms equal those 4 before them
+    test = StagnationTest()
+    snes = PETSc.SNES().create(PETSc.COMM_SELF)
+    norms = [16.0] + [8.0, 4.0, 2.0, 1.0] * 3
+    reasons = [test(snes, k, (1.0, 1.0, f)) for k, f in enumerate(norms)]
+    stop = PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN
+    assert reasons.index(stop) == 10 and test.cycled == 4, reasons
+    snes.destroy()
     test = StagnationTest(divtol=10.0)
     snes = PETSc.SNES().create(PETSc.COMM_SELF)
     assert test(snes, 0, (1.0, 0.0, 2.0)) == PETSc.SNES.ConvergedReason.ITERATING

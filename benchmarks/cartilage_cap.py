@@ -22,8 +22,8 @@ import tempfile
 from pathlib import Path
 
 import matplotlib
+from model_changes import one  # a sibling script: benchmarks/ is sys.path[0]
 
-from shoulder_fem import load_scene, run
 from shoulder_fem.io.output import atomic_write_json
 from shoulder_fem.io.plots import plt, save_figure
 from shoulder_fem.meshes.shoulder import ANATOMICAL_CAP
@@ -40,26 +40,6 @@ SERIES = (
     "supraspinatus_force",
     "scapula_max_von_mises",
 )
-
-
-def one(level: str, overrides: list[str], out: Path) -> dict:
-    """One decoupled run's status, counters and series."""
-    scene = load_scene("shoulder-internal-rotation").with_overrides(overrides)
-    r = run(scene, "decoupled", level=level, out=out)
-    p = r.probes
-    return {
-        "overrides": overrides,
-        "status": r.status,
-        "final_angle_deg": p["final_angle_deg"],
-        "steps": p["steps"],
-        "failed_steps": p["failed_steps"],
-        "newton_iterations": p["newton_iterations"],
-        "cap_half_angle_deg": p["humeral_cap_half_angle_deg"],
-        "cpu_s": r.resources["cpu_s"],
-        "series": {
-            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in SERIES if k in r.series
-        },
-    }
 
 
 def plot(data: dict, path: Path) -> None:
@@ -105,7 +85,8 @@ def main() -> None:
         for level in args.levels:
             cases = {}
             for k, (case, overrides) in enumerate(CAPS.items()):
-                cases[case] = one(level, overrides, Path(tmp) / f"{level}-{k}")
+                out = Path(tmp) / f"{level}-{k}"
+                cases[case] = one(level, overrides, "decoupled", out, series=SERIES)
                 print(level, case, cases[case]["status"], f"{cases[case]['cpu_s']:.1f} s")
             data["levels"][level] = cases
     args.out.mkdir(parents=True, exist_ok=True)

@@ -61,8 +61,10 @@ SERIES = (
 METHODS = ("coupled", "decoupled")
 
 
-def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
-    """One run's status, counters and series."""
+def one(
+    level: str, overrides: list[str], method: str, out: Path, series: tuple[str, ...] = SERIES
+) -> dict:
+    """One run's status, counters and ``series`` (also ``cartilage_cap.py``'s runs)."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(overrides)
     r = run(scene, method, level=level, out=out)
     p = r.probes
@@ -76,7 +78,7 @@ def one(level: str, overrides: list[str], method: str, out: Path) -> dict:
         "cap_half_angle_deg": p["humeral_cap_half_angle_deg"],
         "cpu_s": r.resources["cpu_s"],
         "series": {
-            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in SERIES if k in r.series
+            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in series if k in r.series
         },
     }
 

@@ -563,8 +563,6 @@ _INSERTION_DIRS = {
     "supraspinatus": (0.42, 0.0, 0.90),
     "infraspinatus": (0.45, -0.87, 0.0),
 }
-#: Origin rectangles on the blade: (centre x from the lateral blade border as a fraction of the
-#: blade length, centre z as a fraction of the height from the bottom, face side +1 anterior).
 #: The anatomical humeral cartilage (issue 20, item 4; not the default, see the README): the cap
 #: to 78 deg (head height 19.0 mm) and the insertion footprints turned clear of it, as scene
 #: overrides (``--set`` of ``run`` and ``bench``).
@@ -574,6 +572,8 @@ ANATOMICAL_CAP = (
     "supraspinatus_insertion_turn=20deg",
     "infraspinatus_insertion_turn=15deg",
 )
+#: Origin rectangles on the blade: (centre x from the lateral blade border as a fraction of the
+#: blade length, centre z as a fraction of the height from the bottom, face side +1 anterior).
 _ORIGIN_PLACES = {
     "subscapularis": (0.4, 0.38, +1),
     "supraspinatus": (0.4, 0.88, -1),

@@ -1,4 +1,4 @@
-"""A SNES convergence test that stops a Newton solve stuck on a plateau of its residual norm."""
+"""A SNES convergence test that stops a Newton solve whose residual norm stalls or cycles."""
 
 from __future__ import annotations
 

@@ -668,6 +668,60 @@ def test_master_points_are_where_the_slave_presses_in_the_master_reference():
         tb.contact.master_points("nope")
 
 
+@pytest.mark.mpi
+def test_slave_facets_dealt_to_the_ranks_give_the_same_terms():
+    """The slave facets dealt round-robin to the ranks (the default; issue 22: at paper the
+    glenoid is all on rank 0): every rank holds its share of each pair (within one facet per
+    rank), and the residual, tangent, pressure fields, resultants and multipliers equal those of
+    the facets left with the ranks owning their cells, to round-off (serial and 2 ranks). Two
+    pairs (a P2 mesh master in segments, with friction; a plane), the upper block pressed in and
+    slid after the step's start."""
+    tb = TwoBlocks(offset=(0.25, 0.0), degree=2)
+    pairs = [
+        ContactPair("interface", (cb.UPPER_BOTTOM.id,), MeshSurface((cb.LOWER_TOP.id,)),
+                    tb.eps, friction=0.3, method="augmented"),
+        ContactPair("floor", (cb.LOWER_BOTTOM.id,), Plane((0, 0, -0.499), (0, 0, 1)), tb.eps),
+    ]  # fmt: skip
+    dealt, kept = (Contact(tb.V, tb.u, tb.ft, pairs, share=s) for s in (True, False))
+    comm = MPI.COMM_WORLD
+    for sl in dealt._slaves:
+        counts = comm.allgather(len(sl.nodes))
+        assert max(counts) - min(counts) <= comm.size - 1, counts
+    assert [comm.allreduce(len(sl.nodes)) for sl in dealt._slaves] == [
+        comm.allreduce(len(sl.nodes)) for sl in kept._slaves
+    ]
+    x = tb.V.tabulate_dof_coordinates()
+    upper = dolfinx.fem.locate_dofs_topological(tb.V, 3, tb.ct.find(cb.UPPER.id))
+    tb.u.x.array.reshape(-1, 3)[upper, 2] = -1e-3 * (1.0 + 0.2 * x[upper, 0])
+    for c in (dealt, kept):
+        c.commit()  # the step starts here: the slide below is its slip
+    tb.u.x.array.reshape(-1, 3)[upper, 0] += 2e-4
+    for c in (dealt, kept):
+        assert not c.augment()  # penetrations ~1 mm: one Uzawa update each
+    A = fem_petsc.assemble_matrix(dolfinx.fem.form(ufl.derivative(tb.F, tb.u)))
+    A.assemble()
+    terms = []
+    for c in (dealt, kept):
+        b = A.createVecLeft()
+        c.add_residual(b)
+        K = A.duplicate()
+        K.zeroEntries()
+        c.add_jacobian(K)
+        pressure, shear = c.pressure_fields()
+        terms.append((b, K, pressure.x.array.copy(), shear.x.array.copy(), c.resultants()))
+    (b1, K1, p1, s1, r1), (b2, K2, p2, s2, r2) = terms
+    assert b2.norm() > 0 and K2.norm() > 0 and r2["interface"]["area"] > 0.5
+    b1.axpy(-1.0, b2)
+    K1.axpy(-1.0, K2)
+    assert b1.norm() <= 1e-12 * b2.norm()
+    assert K1.norm() <= 1e-12 * K2.norm()
+    assert np.allclose(p1, p2, rtol=1e-12, atol=1e-12 * np.abs(p2).max())
+    assert np.allclose(s1, s2, rtol=1e-12, atol=1e-12 * np.abs(s2).max()) and np.abs(s2).max() > 0
+    for name in ("interface", "floor"):
+        for key in ("force", "moment", "normal_force", "area", "max_pressure", "active_points"):
+            assert np.allclose(r1[name][key], r2[name][key], rtol=1e-12), (name, key)
+
+
 def test_resultants_per_slave_tag_add_up_to_the_pair():
     """The upper block (offset 0.25 m in x) moved rigidly 1 mm into the lower one, its bottom
     (the slave) split in two tags at x = 0.6 m: each tag's resultants are those of its own

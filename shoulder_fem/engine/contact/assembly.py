@@ -3,9 +3,9 @@
 :class:`Contact` holds the pairs' surfaces and states: it evaluates them at the current
 displacement, adds their forces to a residual and their tangent to a Jacobian, runs the
 augmented Lagrangian's Uzawa updates and answers the outputs. The work is done by the modules
-beside it (points, evaluation, jacobian, output). MPI: slave facets are handled by the rank
-owning their cell, mesh masters are gathered on every rank; rows touched on other ranks go
-through PETSc's stash (vectors) or an explicit all-to-all (matrices).
+beside it (points, evaluation, jacobian, output). MPI: slave facets are dealt evenly to the
+ranks (:mod:`~.balance`), mesh masters are gathered on every rank; rows touched on other ranks
+go through PETSc's stash (vectors) or an explicit all-to-all (matrices).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import output
+from shoulder_fem.engine.contact.balance import share_slaves
 from shoulder_fem.engine.contact.evaluation import couplings, evaluate_pair, facet_projection
 from shoulder_fem.engine.contact.geometry import P2_SUBTRIANGLES, segment_rule, slave_rule
 from shoulder_fem.engine.contact.jacobian import add_to_pattern, jacobian_triplets, triplet_matrix
@@ -85,6 +86,8 @@ class Contact:
         quadrature_degree: Degree of the fixed rule (0: the nodes).
         slave_integration: "subtriangles" or "element" (P2 slaves, fixed rule).
         mesh_integration: "segments" or "points" (mesh masters).
+        share: Deal the slave facets evenly to the ranks (:mod:`~.balance`); ``False``: each
+            is handled by the rank owning its cell.
     """
 
     def __init__(
@@ -97,6 +100,7 @@ class Contact:
         quadrature_degree: int = 4,
         slave_integration: str = "subtriangles",
         mesh_integration: str = "segments",
+        share: bool = True,
     ):
         self.u, self.pairs = u, list(pairs)
         self._penalties = [p.penalty for p in self.pairs]  # each pair's own (Pa/m)
@@ -130,25 +134,36 @@ class Contact:
         )
         self._node_rows = (self._w_l2g[self._umap // wbs] * wbs + self._umap % wbs).reshape(-1, 3)
         self._bc_global = _bc_rows(bcs, self._w_l2g, wbs, self.comm)
-        self._build_surfaces(facet_tags, rule)
+        self._build_surfaces(facet_tags, rule, share)
         self._merged = np.zeros(0, dtype=np.int64)
         self._last_tangent: PETSc.Mat | None = None
         self._last_u = None
         self._x_prev = None
         self.commit()
 
-    def _build_surfaces(self, facet_tags: dolfinx.mesh.MeshTags, rule) -> None:
-        """Slave facets, fixed points and multipliers of every pair; gathered mesh masters."""
+    def _build_surfaces(self, facet_tags: dolfinx.mesh.MeshTags, rule, share: bool) -> None:
+        """Slave facets (dealt to the ranks), their fixed points and multipliers; the masters.
+
+        The slaves' nodes index this rank's nodes, then the imported ones (:mod:`~.balance`):
+        ``_slave_rows`` are their global rows; their ``p1`` are global CG1 dofs.
+        """
         V = self.V
-        self._slaves, self._masters, self._fixed, self._lam = [], [], [], []
+        self._slaves, self._masters = [], []
         self._state = [None] * len(self.pairs)
+        found = [
+            surface_facets(V, facet_tags, p.slave, self.Q, f"contact pair {p.name!r}, slave")
+            for p in self.pairs
+        ]
+        qmap = self.Q.dofmap.index_map
+        q_global = qmap.local_to_global(
+            np.arange(qmap.size_local + qmap.num_ghosts, dtype=np.int32)
+        )
+        comm = self.comm if share else MPI.COMM_SELF  # COMM_SELF: every facet stays
+        self._slaves, self._import = share_slaves(found, len(self._X), q_global, comm)
+        self._slave_rows = self._import.extend(self._node_rows)
+        self._fixed = [fixed_points(sl, *rule) for sl in self._slaves]
+        self._lam = [np.zeros((len(sl.nodes), 3)) for sl in self._slaves]
         for pair in self.pairs:
-            sl = surface_facets(
-                V, facet_tags, pair.slave, self.Q, f"contact pair {pair.name!r}, slave"
-            )
-            self._slaves.append(sl)
-            self._fixed.append(fixed_points(sl, *rule))
-            self._lam.append(np.zeros((len(sl.nodes), 3)))
             if isinstance(pair.master, MeshSurface):
                 overlap = set(pair.master.tags) & set(pair.slave)
                 if overlap:
@@ -165,7 +180,8 @@ class Contact:
 
     # -- helpers -----------------------------------------------------------------------------
     def _current(self) -> np.ndarray:
-        return self._X + self.u.x.array[self._umap].reshape(-1, 3)
+        """Current positions of this rank's nodes, then of its imported ones (collective)."""
+        return self._import.extend(self._X + self.u.x.array[self._umap].reshape(-1, 3))
 
     def _update_masters(self, x_nodes: np.ndarray) -> None:
         for m in self._masters:
@@ -226,7 +242,7 @@ class Contact:
         t0 = time.perf_counter()
         rows, vals = [], []
         for st, sl, m in zip(self._state, self._slaves, self._masters, strict=True):
-            act, node_rows, coef = couplings(st, sl, m, self._node_rows)
+            act, node_rows, coef = couplings(st, sl, m, self._slave_rows)
             force = (st["p"][act, None] * st["n"][act] + st["t"][act]) * st["W"][act, None]
             r = -coef[:, :, None] * force[:, None, :]  # (nqa, k, 3)
             rows.append(node_rows.ravel())
@@ -248,7 +264,7 @@ class Contact:
             segments = dict(
                 x_nodes=self._current(), pieces=self._pieces, rule=self._seg_rule, lam=self._lam
             )
-        state = (self.pairs, self._state, self._slaves, self._masters, self._node_rows)
+        state = (self.pairs, self._state, self._slaves, self._masters, self._slave_rows)
         rows, cols, vals = jacobian_triplets(*state, self._bc_global, segments)
         mine = reuse is not None and reuse is self._last_tangent
         last = (reuse, self._pattern_keys) if mine else None

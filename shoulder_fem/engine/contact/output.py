@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import dolfinx
 import numpy as np
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from shoulder_fem.engine.contact.pair import ContactPair
 from shoulder_fem.engine.contact.surfaces import Facets, MasterMesh
@@ -136,13 +137,16 @@ def pressure_fields(
     for name, key in (("contact_pressure", "p"), ("contact_shear", "t")):
         num = dolfinx.fem.Function(Q, name=name)
         den = dolfinx.fem.Function(Q)
-        for sl, st in zip(slaves, states, strict=True):
+        for sl, st in zip(slaves, states, strict=True):  # the slaves' p1: global dofs
             val = _point_values(st, key)
             f, N1, W = st["facet"], st["N1"], st["W"]
-            np.add.at(num.x.array, sl.p1[f], val[:, None] * N1 * W[:, None])
-            np.add.at(den.x.array, sl.p1[f], N1 * W[:, None])
+            rows = sl.p1[f].ravel().astype(PETSc.IntType)
+            add = PETSc.InsertMode.ADD_VALUES
+            num.vector.setValues(rows, (val[:, None] * N1 * W[:, None]).ravel(), addv=add)
+            den.vector.setValues(rows, (N1 * W[:, None]).ravel(), addv=add)
         for fn in (num, den):
-            fn.x.scatter_reverse(dolfinx.la.ScatterMode.add)
+            fn.vector.assemblyBegin()
+            fn.vector.assemblyEnd()
             fn.x.scatter_forward()
         for m, st in zip(masters, states, strict=False):
             if m is not None:  # the master's sums are global: added to owned and ghost dofs

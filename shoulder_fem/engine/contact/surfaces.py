@@ -26,11 +26,16 @@ TET_EDGE = {(2, 3): 0, (1, 3): 1, (1, 2): 2, (0, 3): 3, (0, 2): 4, (0, 1): 5}
 
 @dataclass
 class Facets:
-    """Canonically ordered facet nodes of a surface on this rank (owned cells only)."""
+    """Canonically ordered facet nodes of a surface on this rank.
+
+    As found by :func:`surface_facets`: the facets of this rank's owned cells, local nodes and
+    CG1 dofs. A contact's slaves once dealt to the ranks (:func:`~.balance.share_slaves`): its
+    nodes then also index imported nodes, and ``p1`` holds global CG1 dofs.
+    """
 
     nodes: np.ndarray  # (nf, nn) local node (block) indices, canonical order, outward oriented
     X: np.ndarray  # (nf, nn, 3) reference coordinates of those nodes
-    p1: np.ndarray  # (nf, 3) local CG1 dofs of the facet vertices (pressure field)
+    p1: np.ndarray  # (nf, 3) CG1 dofs of the facet vertices (pressure field)
     tags: np.ndarray  # (nf,) the facet tag value of each facet (resultants per tag)
 
 

@@ -20,14 +20,14 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import output
-from shoulder_fem.engine.contact.balance import share_slaves
+from shoulder_fem.engine.contact.balance import global_dofs, share_slaves
 from shoulder_fem.engine.contact.evaluation import couplings, evaluate_pair, facet_projection
 from shoulder_fem.engine.contact.geometry import P2_SUBTRIANGLES, segment_rule, slave_rule
 from shoulder_fem.engine.contact.jacobian import add_to_pattern, jacobian_triplets, triplet_matrix
 from shoulder_fem.engine.contact.masters import ContactError, MeshSurface
 from shoulder_fem.engine.contact.pair import ContactPair
 from shoulder_fem.engine.contact.points import fixed_points, segment_points
-from shoulder_fem.engine.contact.surfaces import gather_master, surface_facets
+from shoulder_fem.engine.contact.surfaces import MasterMesh, gather_master, surface_facets
 
 
 @dataclass
@@ -63,6 +63,20 @@ def _bc_rows(bcs, w_l2g: np.ndarray, bs: int, comm: MPI.Comm) -> np.ndarray:
         rows.append(w_l2g[idx // bs] * bs + idx % bs if len(idx) else idx)
     local = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
     return np.unique(np.concatenate(comm.allgather(local)))
+
+
+def _gathered_master(V, Q, facet_tags, pair: ContactPair, node_rows) -> MasterMesh | None:
+    """``pair``'s mesh master gathered on every rank (collective); None for a rigid master."""
+    if not isinstance(pair.master, MeshSurface):
+        return None
+    overlap = set(pair.master.tags) & set(pair.slave)
+    if overlap:
+        raise ContactError(
+            f"contact pair {pair.name!r}: tags {sorted(overlap)} are both slave and master"
+        )
+    what = f"contact pair {pair.name!r}, master"
+    mf = surface_facets(V, facet_tags, pair.master.tags, Q, what)
+    return gather_master(V, mf, V.mesh.comm, node_rows)
 
 
 class Contact:
@@ -147,36 +161,20 @@ class Contact:
         The slaves' nodes index this rank's nodes, then the imported ones (:mod:`~.balance`):
         ``_slave_rows`` are their global rows; their ``p1`` are global CG1 dofs.
         """
-        V = self.V
-        self._slaves, self._masters = [], []
         self._state = [None] * len(self.pairs)
         found = [
-            surface_facets(V, facet_tags, p.slave, self.Q, f"contact pair {p.name!r}, slave")
+            surface_facets(self.V, facet_tags, p.slave, self.Q, f"contact pair {p.name!r}, slave")
             for p in self.pairs
         ]
-        qmap = self.Q.dofmap.index_map
-        q_global = qmap.local_to_global(
-            np.arange(qmap.size_local + qmap.num_ghosts, dtype=np.int32)
-        )
         comm = self.comm if share else MPI.COMM_SELF  # COMM_SELF: every facet stays
-        self._slaves, self._import = share_slaves(found, len(self._X), q_global, comm)
+        self._slaves, self._import = share_slaves(found, len(self._X), global_dofs(self.Q), comm)
         self._slave_rows = self._import.extend(self._node_rows)
         self._fixed = [fixed_points(sl, *rule) for sl in self._slaves]
         self._lam = [np.zeros((len(sl.nodes), 3)) for sl in self._slaves]
-        for pair in self.pairs:
-            if isinstance(pair.master, MeshSurface):
-                overlap = set(pair.master.tags) & set(pair.slave)
-                if overlap:
-                    raise ContactError(
-                        f"contact pair {pair.name!r}: tags {sorted(overlap)} are both slave "
-                        "and master"
-                    )
-                mf = surface_facets(
-                    V, facet_tags, pair.master.tags, self.Q, f"contact pair {pair.name!r}, master"
-                )
-                self._masters.append(gather_master(V, mf, self.comm, self._node_rows))
-            else:
-                self._masters.append(None)
+        self._masters = [
+            _gathered_master(self.V, self.Q, facet_tags, pair, self._node_rows)
+            for pair in self.pairs
+        ]
 
     # -- helpers -----------------------------------------------------------------------------
     def _current(self) -> np.ndarray:

@@ -21,7 +21,13 @@ from mpi4py import MPI
 
 from shoulder_fem.engine.contact.surfaces import Facets
 
-__all__ = ["NodeImport", "share_slaves"]
+__all__ = ["NodeImport", "global_dofs", "share_slaves"]
+
+
+def global_dofs(Q) -> np.ndarray:
+    """The global index of every local (owned and ghost) dof of a scalar space ``Q``."""
+    imap = Q.dofmap.index_map
+    return imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
 
 
 @dataclass

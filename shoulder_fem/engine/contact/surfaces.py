@@ -1,7 +1,8 @@
 """The facets of a tagged surface, and a mesh master gathered on every rank.
 
-Slave facets are handled by the rank owning their cell, nodes in canonical order (v0 v1 v2
-[e01 e12 e20]) and oriented outwards. A mesh master is small: it is gathered on every rank as
+Slave facets are found by the rank owning their cell (a contact then deals them to all the
+ranks: :mod:`~.balance`), nodes in canonical order (v0 v1 v2 [e01 e12 e20]) and oriented
+outwards. A mesh master is small: it is gathered on every rank as
 flat triangles (each P1 facet, or the 4 sub-triangles of a P2 facet), its node positions
 re-gathered at each evaluation. Simplices only (triangular facets of tetrahedra).
 """

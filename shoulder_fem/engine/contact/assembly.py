@@ -153,6 +153,7 @@ class Contact:
         self._last_tangent: PETSc.Mat | None = None
         self._last_u = None
         self._x_prev = None
+        self._x_nodes: np.ndarray | None = None  # node positions at the last evaluation
         self.commit()
 
     def _build_surfaces(self, facet_tags: dolfinx.mesh.MeshTags, rule, share: bool) -> None:
@@ -201,7 +202,7 @@ class Contact:
     def evaluate(self) -> None:
         """Search the pairing and compute pressures and tractions at the current ``u``."""
         t0 = time.perf_counter()
-        x_nodes = self._current()
+        x_nodes = self._x_nodes = self._current()  # kept for the tangent at this same u
         self._update_masters(x_nodes)
         changes = 0
         for i, pair in enumerate(self.pairs):
@@ -260,7 +261,7 @@ class Contact:
         segments = None
         if self.mesh_integration == "segments":
             segments = dict(
-                x_nodes=self._current(), pieces=self._pieces, rule=self._seg_rule, lam=self._lam
+                x_nodes=self._x_nodes, pieces=self._pieces, rule=self._seg_rule, lam=self._lam
             )
         state = (self.pairs, self._state, self._slaves, self._masters, self._slave_rows)
         rows, cols, vals = jacobian_triplets(*state, self._bc_global, segments)

@@ -7,9 +7,9 @@ glenohumeral contact while rank 1 waited. :func:`share_slaves` deals each rank's
 every pair round-robin to all the ranks (facet i of rank r to rank (i + r) mod size), once, at
 the start. A rank then holds facets whose nodes it may not have: those nodes are *imported*,
 appended after its own nodes, and :meth:`NodeImport.extend` brings their values (current
-positions, at every evaluation; rows and reference positions once) from the rank that dealt
-the facet. The contact's rows and columns are global, so its forces and tangent reach their
-owners as before (PETSc's stash, the triplets' all-to-all).
+positions at every evaluation, global rows once; reference positions come with the facets)
+from the rank that dealt the facet. The contact's rows and columns are global, so its forces
+and tangent reach their owners as before (PETSc's stash, the triplets' all-to-all).
 """
 
 from __future__ import annotations

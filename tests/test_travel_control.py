@@ -27,14 +27,16 @@ K_LINK = 400.0  # N/m, the spring from the plate to the body
 SCALE = 1e3  # N per m of the measure
 
 
-def _plate_and_body():
+def _plate_and_body(admissible=None):
     """Body "b" on the six springs, pulled along x by a link spring from a prescribed plate "a"
-    (rest length 0.3 m, unstressed at rest); the measure is b's x translation."""
+    (rest length 0.3 m, unstressed at rest); the measure is b's x translation. ``admissible``:
+    None, or Callable(b) -> bool, the model's test of trial states."""
     springs, K = six_springs()
     b = RigidBody("b", np.zeros(3))
     a = RigidBody("a", np.array([0.3, 0.0, 0.0]), prescribed=True)
     link = Spring("link", "b", (0.0, 0, 0), "a", (0.3, 0, 0), K_LINK, rest_length=0.3)
-    system = RigidSystem([b, a], [*springs, link], comm=MPI.COMM_WORLD)
+    test = None if admissible is None else (lambda: admissible(b))
+    system = RigidSystem([b, a], [*springs, link], comm=MPI.COMM_WORLD, admissible=test)
 
     def measure(with_gradient: bool) -> MeasureGradient:
         out = MeasureGradient(float(b.translation[0]))
@@ -70,6 +72,36 @@ def test_the_travel_that_gives_a_target_by_hand():
     control.target = 2e-5
     its = system.solve("2e-5 m")
     assert its <= 1 and abs(b.translation[0] - 2e-5) <= 1e-12 / SCALE
+    tangent.destroy()
+    system.destroy()
+
+
+def test_a_predictor_into_an_inadmissible_state_is_shortened():
+    """The tangent predictor of the next target is checked as a Newton trial state is: here the
+    model admits b's x translation below 1.4e-5 m only. From 1e-5 m, the predictor of a 1e-5
+    step (to 2e-5, exact in this linear regime) is refused, then its half (1.5e-5), and its
+    quarter (1.25e-5) is taken; Newton then reaches the target 1.3e-5 from there. A model that
+    admits nothing keeps the converged state (no predictor)."""
+    limit = {"x": 1.4e-5}
+
+    def below(b) -> bool:
+        return bool(MPI.COMM_WORLD.allreduce(b.translation[0] < limit["x"], op=MPI.LAND))
+
+    system, a, b, measure, _ = _plate_and_body(below)
+    system.solve("rest")
+    control = system.set_control("a", [1.0, 0, 0], measure, SCALE)
+    control.target = 1e-5
+    system.solve("1e-5 m")
+    tangent = system.control_tangent()
+    assert system.predict(tangent, 1e-5) == 0.25
+    assert b.translation[0] == pytest.approx(1.25e-5, rel=1e-6)
+    control.target = 1.3e-5
+    system.solve("1.3e-5 m")
+    assert abs(b.translation[0] - 1.3e-5) <= 1e-12 / SCALE
+    before = b.translation.copy()
+    limit["x"] = -1.0  # nothing admissible
+    assert system.predict(tangent, 1e-5) == 0.0
+    assert np.array_equal(b.translation, before)
     tangent.destroy()
     system.destroy()
 

@@ -6,8 +6,10 @@ nodes and its centroid. Inverted elements, where the laws are not defined, and t
 Veronda-Westmann exponential far beyond any physical stretch (I1bar - 3 = 55 gave residuals of
 1e55 and then NaN) are thereby never evaluated: the Newton step is halved instead
 (:class:`~shoulder_fem.engine.rigid_system.guard.TrialGuard`). The bounds act on trial states
-only, never on the equations, and lie far outside the converged states (J in 0.47-2.7, measured
-at every output: series ``soft_tissue_min_j``, ``soft_tissue_max_j``).
+only, never on the equations, and lie far outside the default model's converged states (J in
+0.47-2.7, measured at every output: series ``soft_tissue_min_j``, ``soft_tissue_max_j``). The
+incompressible option's converged states reach them where it stops (a subscapularis element at
+its insertion's edge: README, "Incompressible soft tissue").
 """
 
 from __future__ import annotations

@@ -8,8 +8,9 @@ Veronda-Westmann exponential far beyond any physical stretch (I1bar - 3 = 55 gav
 (:class:`~shoulder_fem.engine.rigid_system.guard.TrialGuard`). The bounds act on trial states
 only, never on the equations, and lie far outside the default model's converged states (J in
 0.47-2.7, measured at every output: series ``soft_tissue_min_j``, ``soft_tissue_max_j``). The
-incompressible option's converged states reach them where it stops (a subscapularis element at
-its insertion's edge: README, "Incompressible soft tissue").
+incompressible option's converged states reach them where it stops on the levels' 25 mm muscles
+(a subscapularis element at its insertion's edge; with 8 mm muscles it goes on to the cartilage's
+edge: README, "Incompressible soft tissue").
 """
 
 from __future__ import annotations

@@ -28,12 +28,13 @@ ELEMENT = {
     "cell": "straight-sided tetrahedron",
     "bone": "P2 displacement (compressible, nu = 0.3)",
     "cartilage_and_muscle": (
-        "sized for Taylor-Hood P2/P1 (P2 displacement, continuous P1 pressure per body); the "
-        "runs solve P2 displacement alone today (the Taylor-Hood pressure is issue 20)"
+        "sized for Taylor-Hood P2/P1 (P2 displacement, continuous P1 pressure per body); by "
+        "default the runs solve P2 displacement alone (compressible); with "
+        "soft_tissue_formulation = incompressible the P1 pressure is condensed out, not solved"
     ),
     "dof_count": (
         "dofs = dofs_displacement (3 x P2 nodes of the mesh) + dofs_pressure (P1 vertices of "
-        "each soft body, which the runs do not solve today) + 6 per rigid bone (rigid-bone "
+        "each soft body, which no run solves as unknowns) + 6 per rigid bone (rigid-bone "
         "variant); dofs_p1 = 3 x vertices is the count of a linear element, for comparison "
         "with the paper's 8-node hexahedra"
     ),

@@ -144,6 +144,7 @@ def run(
         monitor = ResourceMonitor(comm, outdir.scratch)
         recorder = Recorder(comm, outdir)
         recorder.set_meta(scene=scene.name, method=method, level=level)
+        recorder.extra("level_settings", scene.level(level))  # e.g. the mesh sizes (m)
         recorder.set_parameters(scene.values(), scene.units())
         recorder.extra("blas", blas_library())
         recorder.extra("threads", thread_settings())
@@ -152,12 +153,7 @@ def run(
         dofs = fam.dofs(model)
         recorder.extra("dofs", dofs)
         logger.info(
-            "%s / %s / %s: %d DOFs on %d rank(s)",
-            scene.name,
-            method,
-            level,
-            dofs,
-            comm.size,
+            "%s / %s / %s: %d DOFs on %d rank(s)", scene.name, method, level, dofs, comm.size
         )
         fields = outdir.path / "fields"
         if comm.rank == 0:

@@ -210,6 +210,8 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
         # in the coupled run (measured: 3.2 -> 5.5 deg, where the humerus's swing grows
         # fastest; test_every_step_converges_in_a_few_newton_iterations)
         assert result.probes["failed_steps"] <= (1 if method == "coupled" else 0), method
+        # the mesh sizes the run used, as the scene file's [levels.coarse] states them (m)
+        assert result.level_settings == {"h_joint": 0.0125, "h_bone": 0.040, "h_muscle": 0.025}
         for name in SERIES:
             x, y = _series(result, name)
             assert np.allclose(x, angles), (method, name, x)

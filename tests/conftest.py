@@ -9,6 +9,9 @@ from pathlib import Path
 import pytest
 from mpi4py import MPI
 
+# every test's forms wait for another process's compilation as the runs do (JIT_TIMEOUT)
+import shoulder_fem.engine.fem  # noqa: F401
+
 
 @pytest.fixture
 def comm_tmp(tmp_path: Path) -> Path:

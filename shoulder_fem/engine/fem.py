@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import dolfinx
+import dolfinx.jit
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["JIT_PARAMS", "constant", "identity_rows", "owned_flags"]
+__all__ = ["JIT_PARAMS", "JIT_TIMEOUT", "constant", "identity_rows", "owned_flags"]
 
 #: C compiler flags of the hot forms' kernels (``jit_params`` of ``dolfinx.fem.form``).
 #: ``-fno-math-errno`` lets the compiler inline and vectorise ``sqrt``, ``exp`` and ``log``
@@ -17,6 +18,16 @@ __all__ = ["JIT_PARAMS", "constant", "identity_rows", "owned_flags"]
 #: ``-O2 -g0``. ``-march=native`` (0.096 s) is left out: it changes round-off (contraction
 #: into FMA) and a form cache shared by the nodes of a cluster must run on all of them.
 JIT_PARAMS = {"cffi_extra_compile_args": ["-O2", "-g0", "-fno-math-errno"]}
+
+#: How long (s) a process waits for another process's compilation of the same form in the
+#: shared cache. dolfinx's default, 10 s, is shorter than a soft-tissue tangent takes to
+#: compile on a busy machine, so two processes that start on an empty cache (the test suite's
+#: two workers, simultaneous runs of a cluster's jobs) failed with a TimeoutError. Set as
+#: dolfinx's default at import: a ``timeout`` in the user's ``dolfinx_jit_parameters.json``
+#: still wins.
+JIT_TIMEOUT = 300
+_doc = dolfinx.jit.DOLFINX_DEFAULT_JIT_PARAMETERS["timeout"][1]
+dolfinx.jit.DOLFINX_DEFAULT_JIT_PARAMETERS["timeout"] = (JIT_TIMEOUT, _doc)
 
 
 def constant(mesh: dolfinx.mesh.Mesh, value) -> dolfinx.fem.Constant:

@@ -1269,3 +1269,8 @@ def test_a_stiff_contact_penalty_is_seated_by_continuation(tmp_path_factory, mon
     monkeypatch.setattr(newton, "FALLBACK_LINESEARCH", "basic")  # full Newton steps alone
     with pytest.raises(api.RunFailed, match="0 deg"):
         run([], True, "whole_direct")
+    # the failed run's solver is destroyed all the same: the MUMPS options it kept for its
+    # factorizations left PETSc's database with it (they stayed there before, under its prefix)
+    from petsc4py import PETSc
+
+    assert not [k for k in PETSc.Options().getAll() if k.startswith("shoulder_part1")]

@@ -99,10 +99,12 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         stage="rotation",
         stress=stress_vm,
     )
-    data = run_steps(model, run, job)
-    run.recorder.extra("dofs_coupled", unknowns(system))
-    save_results(model, data, stress_vm, mesh, ft, run.fields.parent / "shoulder.npz")
-    probe.destroy()
-    if volumetric is not None:
-        volumetric.destroy()
-    system.destroy()
+    try:
+        data = run_steps(model, run, job)
+        run.recorder.extra("dofs_coupled", unknowns(system))
+        save_results(model, data, stress_vm, mesh, ft, run.fields.parent / "shoulder.npz")
+    finally:  # a failed run too: its solver's options leave PETSc's database with it
+        probe.destroy()
+        if volumetric is not None:
+            volumetric.destroy()
+        system.destroy()

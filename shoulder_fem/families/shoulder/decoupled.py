@@ -365,11 +365,13 @@ class Part1:
             The stepping's outputs (:func:`stepping.run_steps`) and the transfer to part 2.
         """
         run = self.run_context
-        data = run_steps(self.model, run, self.job)
-        run.recorder.extra("dofs_part1", unknowns(self.system))
-        self.transfer.save(run.fields.parent / "transfer.npz", self.comm)
-        if not self.keep:
-            self.destroy()
+        try:
+            data = run_steps(self.model, run, self.job)
+            run.recorder.extra("dofs_part1", unknowns(self.system))
+            self.transfer.save(run.fields.parent / "transfer.npz", self.comm)
+        finally:  # a failed run too (with ``keep`` the caller destroys it)
+            if not self.keep:
+                self.destroy()
         return data, self.transfer
 
     def destroy(self) -> None:

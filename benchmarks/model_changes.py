@@ -61,26 +61,30 @@ SERIES = (
 METHODS = ("coupled", "decoupled")
 
 
+def record(r, series: tuple[str, ...]) -> dict:
+    """A finished run's status, counters, CPU time and ``series`` (also ``muscle_mesh.py``'s)."""
+    p = r.probes
+    return {
+        "status": r.status,
+        "final_angle_deg": p["final_angle_deg"],
+        "steps": p["steps"],
+        "failed_steps": p["failed_steps"],
+        "newton_iterations": p["newton_iterations"],
+        "cpu_s": r.resources["cpu_s"],
+        "series": {
+            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in series if k in r.series
+        },
+    }
+
+
 def one(
     level: str, overrides: list[str], method: str, out: Path, series: tuple[str, ...] = SERIES
 ) -> dict:
     """One run's status, counters and ``series`` (also ``cartilage_cap.py``'s runs)."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(overrides)
     r = run(scene, method, level=level, out=out)
-    p = r.probes
-    return {
-        "overrides": overrides,
-        "status": r.status,
-        "final_angle_deg": p["final_angle_deg"],
-        "steps": p["steps"],
-        "failed_steps": p["failed_steps"],
-        "newton_iterations": p["newton_iterations"],
-        "cap_half_angle_deg": p["humeral_cap_half_angle_deg"],
-        "cpu_s": r.resources["cpu_s"],
-        "series": {
-            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in series if k in r.series
-        },
-    }
+    cap = r.probes["humeral_cap_half_angle_deg"]
+    return {"overrides": overrides, "cap_half_angle_deg": cap, **record(r, series)}
 
 
 PANELS = (

@@ -24,6 +24,7 @@ import tempfile
 from pathlib import Path
 
 import matplotlib
+from model_changes import record  # a sibling script: benchmarks/ is sys.path[0]
 
 from shoulder_fem import load_scene, run
 from shoulder_fem.io.output import atomic_write_json
@@ -55,22 +56,13 @@ def one(level: str, h_muscle_mm: float, method: str, overrides: list[str], out: 
     sizes = dict(scene.level(level), h_muscle=h_muscle_mm * 1e-3)
     scene = dataclasses.replace(scene, levels={**scene.levels, level: sizes})
     r = run(scene, method, level=level, out=out)
-    p = r.probes
     return {
         "h_muscle_mm": h_muscle_mm,
         "method": method,
-        "status": r.status,
         "message": r.message,
         "dofs": r.dofs,
         "dofs_part1": r.data.get("dofs_part1"),
-        "final_angle_deg": p["final_angle_deg"],
-        "steps": p["steps"],
-        "failed_steps": p["failed_steps"],
-        "newton_iterations": p["newton_iterations"],
-        "cpu_s": r.resources["cpu_s"],
-        "series": {
-            k: {"x": r.series[k]["x"], "y": r.series[k]["y"]} for k in SERIES if k in r.series
-        },
+        **record(r, SERIES),
     }
 
 

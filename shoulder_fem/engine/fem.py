@@ -20,11 +20,11 @@ __all__ = ["JIT_PARAMS", "JIT_TIMEOUT", "constant", "identity_rows", "owned_flag
 JIT_PARAMS = {"cffi_extra_compile_args": ["-O2", "-g0", "-fno-math-errno"]}
 
 #: How long (s) a process waits for another process's compilation of the same form in the
-#: shared cache. dolfinx's default, 10 s, is shorter than a soft-tissue tangent takes to
-#: compile on a busy machine, so two processes that start on an empty cache (the test suite's
-#: two workers, simultaneous runs of a cluster's jobs) failed with a TimeoutError. Set as
-#: dolfinx's default at import: a ``timeout`` in the user's ``dolfinx_jit_parameters.json``
-#: still wins.
+#: shared cache. dolfinx's default, 10 s, can be shorter than a soft-tissue tangent takes to
+#: compile on a busy machine; a second process on the same empty cache (simultaneous runs of
+#: a cluster's jobs) then stops with a TimeoutError (FFCx's ``get_cached_module`` polls once a
+#: second; read from its source, not observed here). Set as dolfinx's default at import: a
+#: ``timeout`` in the user's ``dolfinx_jit_parameters.json`` still wins.
 JIT_TIMEOUT = 300
 _doc = dolfinx.jit.DOLFINX_DEFAULT_JIT_PARAMETERS["timeout"][1]
 dolfinx.jit.DOLFINX_DEFAULT_JIT_PARAMETERS["timeout"] = (JIT_TIMEOUT, _doc)

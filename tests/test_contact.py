@@ -480,7 +480,8 @@ def test_segment_tangent_is_central_near_kinks_forward_elsewhere(monkeypatch):
     if kern is None:
         pytest.fail("the segment kernel did not compile (see the warning)")
     rule = segment_rule(2)
-    slave = np.array([[0.0, 0.0, 0.0], [1e-3, 0.0, 0.0], [0.0, 1e-3, 0.0]])
+    # the slave's normal -z faces the master's +z (a pair that faces away has no weight)
+    slave = np.array([[0.0, 0.0, 0.0], [0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0]])
     master = np.array([[-3e-4, -2e-4, 0.0], [1.7e-3, -1e-4, 0.0], [-1e-4, 1.6e-3, 0.0]])
 
     def blocks(master, lift, tilt, near):
@@ -502,6 +503,83 @@ def test_segment_tangent_is_central_near_kinks_forward_elsewhere(monkeypatch):
     assert blocks(on_edge, 2e-5, 1e-4, NEAR_KINK)[1][0]
     assert blocks(master, 0.0, 0.0, NEAR_KINK)[1][0]  # parallel at zero gap
     assert not blocks(master, 2e-5, 0.0, NEAR_KINK)[1][0]  # parallel, pressed in
+
+
+def test_a_piece_turning_through_the_facing_test_changes_its_forces_continuously(monkeypatch):
+    """A (slave piece, master triangle) pair is cut only while they face each other, c = -n_s .
+    n_m > FACING_MIN (0.05); up to FACING_FULL (0.2) its weights rise as a C1 cubic (by hand: 0,
+    5/32, 1/2 and 1 at a quarter, half and all of the way, flat at both ends). Before, the test
+    was a step at c = 0.2: on the shoulder's muscles a piece whose c crossed it dropped its
+    0.02 N and Newton cycled. A P1 slave piece (normal -z) pressed by a master triangle tilted
+    about x to c = cos(tilt): its forces (numpy) vanish at c = FACING_MIN from either side;
+    half way up they are half the unweighted ones; and the compiled tangent there is the
+    central difference of the numpy forces (the weight's derivative in)."""
+    from shoulder_fem.engine.contact import geometry, kernel, segment_tangent
+    from shoulder_fem.engine.contact.geometry import (
+        FACING_FULL,
+        FACING_MIN,
+        facing_weight,
+        segment_rule,
+    )
+    from shoulder_fem.engine.contact.segment_tangent import (
+        FD_STEP,
+        SegmentPairs,
+        segment_geometry,
+        segment_loads,
+    )
+
+    span = FACING_FULL - FACING_MIN
+    c = FACING_MIN + span * np.array([-0.3, 0.0, 0.25, 0.5, 1.0, 2.0])
+    assert facing_weight(c) == pytest.approx([0.0, 0.0, 0.15625, 0.5, 1.0, 1.0], abs=1e-15)
+    ends = np.array([FACING_MIN, FACING_FULL])
+    slope = (facing_weight(ends + [1e-7, 0.0]) - facing_weight(ends - [0.0, 1e-7])) / 1e-7
+    assert np.abs(slope).max() < 1e-5 * 1.5 / span  # C1: flat at 0 and 1 (1.5 / span mid-way)
+
+    pen = ContactPair("p", (1,), MeshSurface((2,)), 1e7)
+    rule = segment_rule(2)
+    slave = np.array([[0.0, 0.0, 0.0], [0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0]])  # normal -z
+    flat = np.array([[-3e-4, -2e-4, 0.0], [1.7e-3, -1e-4, 0.0], [-1e-4, 1.6e-3, 0.0]])
+    pp = object.__new__(SegmentPairs)
+    pp.facet, pp.cols, pp.m_vert = np.zeros(1, int), np.arange(3)[None], np.arange(3)[None]
+    pp.m_nodes, pp.tri_mu, pp.ref_area = np.arange(3)[None], None, np.array([5e-7])
+
+    def pair_at(cos):
+        a = math.acos(cos)  # the master turned about x through the slave's centroid
+        rot = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+        centre = np.array([1e-3 / 3, 1e-3 / 3, 0.0])
+        master = (flat - centre) @ rot.T + centre + [0.0, 0.0, 2e-5]
+        return np.concatenate([slave, master])[None]
+
+    def loads(Y):
+        geo = segment_geometry(pp, Y, rule, 3)
+        return segment_loads(pen, geo, Y, np.zeros((1, 3)), 3)
+
+    full = np.abs(loads(pair_at(0.9))).max()
+    assert full > 0
+    for cos in (FACING_MIN - 1e-9, FACING_MIN + 1e-9):
+        assert np.abs(loads(pair_at(cos))).max() <= 1e-6 * full
+    Y = pair_at(FACING_MIN + 0.5 * span)
+    R = loads(Y)
+    monkeypatch.setattr(segment_tangent, "facing_weight", lambda c: np.ones_like(c))
+    assert np.allclose(R, 0.5 * loads(Y), rtol=1e-12, atol=0.0) and np.abs(R).max() > 0
+    monkeypatch.setattr(segment_tangent, "facing_weight", geometry.facing_weight)
+
+    monkeypatch.setenv("SHOULDER_FEM_CONTACT_KERNEL", "c")
+    kern = kernel.load()
+    if kern is None:
+        pytest.fail("the segment kernel did not compile (see the warning)")
+    one = np.arange(3)[None]
+    args = (pen, Y, one, one, None, pp.ref_area, np.zeros((1, 3)), rule, 3, FD_STEP, np.inf)
+    blk, _ = kern.tangent(*args)  # central differences everywhere
+    ref = np.empty((6, 3, 6, 3))
+    h = 1e-9
+    for node in range(6):
+        for i in range(3):
+            Yp, Ym = Y.copy(), Y.copy()
+            Yp[0, node, i] += h
+            Ym[0, node, i] -= h
+            ref[:, :, node, i] = (loads(Yp)[0] - loads(Ym)[0]) / (2 * h)
+    assert np.abs(blk[0] - ref).max() <= 1e-4 * np.abs(ref).max()
 
 
 def test_segment_kernel_without_a_compiler_falls_back_to_numpy(monkeypatch, tmp_path, caplog):

@@ -21,9 +21,11 @@ from scipy.spatial import cKDTree
 
 from shoulder_fem.engine.contact import kernel
 from shoulder_fem.engine.contact.geometry import (
+    FACING_MIN,
     NODE_MU,
     barycentric_2d,
     closest_points_on_triangles,
+    facing_weight,
     fan_rule,
     overlap_polygons,
     p2_shape,
@@ -68,7 +70,8 @@ def _facing_candidates(P: np.ndarray, tri: np.ndarray, candidates: int):
     """Pairs (slave piece j, master triangle t) near each other and facing each other.
 
     Returns:
-        (j, t, ns): the pairs' indices and the pieces' unit normals (all pieces).
+        (j, t, ns, wf): the pairs' indices, the pieces' unit normals (all pieces) and each
+        pair's :func:`~.geometry.facing_weight`.
     """
     ns = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     ns /= np.linalg.norm(ns, axis=1)[:, None]
@@ -83,8 +86,9 @@ def _facing_candidates(P: np.ndarray, tri: np.ndarray, candidates: int):
     dist, cand = dist.reshape(len(cs), k), cand.reshape(len(cs), k)
     j, c = np.nonzero(np.isfinite(dist))
     t = cand[j, c]
-    keep = np.einsum("qi,qi->q", ns[j], nm[t]) < -0.2  # facing each other
-    return j[keep], t[keep], ns
+    c = -np.einsum("qi,qi->q", ns[j], nm[t])
+    keep = c > FACING_MIN  # facing each other
+    return j[keep], t[keep], ns, facing_weight(c[keep])
 
 
 def segment_points(
@@ -116,12 +120,12 @@ def segment_points(
     ref_area = 0.5 * np.linalg.norm(np.cross(PX[:, 1] - PX[:, 0], PX[:, 2] - PX[:, 0]), axis=1)
     piece_facet = np.repeat(np.arange(nf), npc)
     piece_id = np.tile(np.arange(npc), nf)
-    j, t, ns = _facing_candidates(P, tri, pair.candidates)
+    j, t, ns, wf = _facing_candidates(P, tri, pair.candidates)
     nn = sl.nodes.shape[1]
     kern = kernel.load()
     parts = []
     for c in range(0, len(j), CUT_CHUNK):  # the cut's work arrays, a chunk of pairs at a time
-        jc, tc = j[c : c + CUT_CHUNK], t[c : c + CUT_CHUNK]
+        jc, tc, wc = j[c : c + CUT_CHUNK], t[c : c + CUT_CHUNK], wf[c : c + CUT_CHUNK]
         if kern is not None:
             rr, lam_s, beta, W = kern.cut(P[jc], ns[jc], tri[tc], seg_rule)
         else:
@@ -132,7 +136,7 @@ def segment_points(
             beta = barycentric_2d(pts, m2[rr])  # on the master's own vertex order
         if len(rr) == 0:
             continue
-        W = W * ref_area[jc[rr]]
+        W = W * ref_area[jc[rr]] * wc[rr]
         pj = jc[rr]
         cols = pieces[piece_id[pj]]  # (npts, 3)
         N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[cols])

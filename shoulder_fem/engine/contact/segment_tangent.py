@@ -41,6 +41,7 @@ from shoulder_fem.engine.contact.geometry import (
     NODE_MU,
     barycentric_2d,
     cut_kink,
+    facing_weight,
     fan_rule,
     overlap_polygons,
     p2_shape,
@@ -176,7 +177,9 @@ def segment_geometry(
     rr, pts, W = fan_rule(poly, cnt, s2, rule)
     if len(rr) == 0:
         return None
-    W = W * pp.ref_area[rr]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    W = W * (pp.ref_area * facing_weight(-np.einsum("qi,qi->q", nsv, n)))[rr]
     lam_s = barycentric_2d(pts, s2[rr])
     beta = barycentric_2d(pts, m2[rr])
     N1 = np.einsum("qk,qkj->qj", lam_s, NODE_MU[pp.cols[rr]])
@@ -185,9 +188,7 @@ def segment_geometry(
         Nm = beta
     else:
         Nm = p2_shape(np.einsum("qk,qkj->qj", beta, pp.tri_mu[rr]))
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[rr]
-    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-    return SegmentGeometry(rr, N1, N, Nm, W, n)
+    return SegmentGeometry(rr, N1, N, Nm, W, n[rr])
 
 
 def segment_loads(

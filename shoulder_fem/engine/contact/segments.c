@@ -97,6 +97,17 @@ static double cut_kink(const double *s2, const double *m2)
  * overlap with a master triangle T (3x3): barycentric coordinates on the piece (lam) and on
  * T in its own vertex order (beta), weights as fractions of the piece's area (W); with kink
  * not NULL, its cut_kink. */
+/* geometry.facing_weight: the factor of a pair's weights at c = -ns . nm (0 up to
+ * FACING_MIN, 1 from FACING_FULL, a C1 cubic between; the same constants as geometry.py). */
+#define FACING_MIN 0.05
+#define FACING_FULL 0.2
+static double facing_weight(double c)
+{
+    double t = (c - FACING_MIN) / (FACING_FULL - FACING_MIN);
+    t = t < 0.0 ? 0.0 : (t > 1.0 ? 1.0 : t);
+    return t * t * (3.0 - 2.0 * t);
+}
+
 static int cut_pair(const double *P, const double *ns, const double *T, int nq,
                     const double *mu, const double *w, double *lam, double *beta, double *W,
                     double *kink)
@@ -257,6 +268,9 @@ static void pair_geometry(const Law *L, const double *Y, const long *cols, const
     l = l > 1e-300 ? l : 1e-300;
     for (int i = 0; i < 3; ++i)
         G->n[i] /= l;
+    double wf = facing_weight(-(nsv[0] * G->n[0] + nsv[1] * G->n[1] + nsv[2] * G->n[2]));
+    for (int k = 0; k < G->q; ++k)
+        G->W[k] *= wf;
 }
 
 static double pressure(const Law *L, double g, double lam)

@@ -86,9 +86,9 @@ def _facing_candidates(P: np.ndarray, tri: np.ndarray, candidates: int):
     dist, cand = dist.reshape(len(cs), k), cand.reshape(len(cs), k)
     j, c = np.nonzero(np.isfinite(dist))
     t = cand[j, c]
-    c = -np.einsum("qi,qi->q", ns[j], nm[t])
-    keep = c > FACING_MIN  # facing each other
-    return j[keep], t[keep], ns, facing_weight(c[keep])
+    facing = -np.einsum("qi,qi->q", ns[j], nm[t])
+    keep = facing > FACING_MIN  # facing each other
+    return j[keep], t[keep], ns, facing_weight(facing[keep])
 
 
 def segment_points(

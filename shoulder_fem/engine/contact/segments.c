@@ -93,10 +93,6 @@ static double cut_kink(const double *s2, const double *m2)
     return d;
 }
 
-/* The points of a slave piece P (3x3, counter-clockwise about its unit normal ns) on its
- * overlap with a master triangle T (3x3): barycentric coordinates on the piece (lam) and on
- * T in its own vertex order (beta), weights as fractions of the piece's area (W); with kink
- * not NULL, its cut_kink. */
 /* geometry.facing_weight: the factor of a pair's weights at c = -ns . nm (0 up to
  * FACING_MIN, 1 from FACING_FULL, a C1 cubic between; the same constants as geometry.py). */
 #define FACING_MIN 0.05
@@ -108,6 +104,10 @@ static double facing_weight(double c)
     return t * t * (3.0 - 2.0 * t);
 }
 
+/* The points of a slave piece P (3x3, counter-clockwise about its unit normal ns) on its
+ * overlap with a master triangle T (3x3): barycentric coordinates on the piece (lam) and on
+ * T in its own vertex order (beta), weights as fractions of the piece's area (W); with kink
+ * not NULL, its cut_kink. */
 static int cut_pair(const double *P, const double *ns, const double *T, int nq,
                     const double *mu, const double *w, double *lam, double *beta, double *W,
                     double *kink)

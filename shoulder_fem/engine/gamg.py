@@ -93,7 +93,7 @@ class ScaledGAMG:
         self.s.reciprocal()
         self.As.diagonalScale(self.s, self.s)
         near = P.getNearNullSpace()
-        if near is not None and near.getVecs():
+        if near.handle and near.getVecs():  # petsc4py: a handle of 0 when there is none
             vecs = []
             for v in near.getVecs():
                 w = v.copy()

@@ -230,13 +230,16 @@ def add_to_pattern(
 ) -> np.ndarray:
     """A += K, widening A's pattern only when K has entries never merged before (collective).
 
-    The widening is one explicit merge (never PETSc reallocating entry by entry). Returns the
-    keys merged so far.
+    The widening is one explicit merge (never PETSc reallocating entry by entry); A keeps its
+    near-nullspace (the merge replaces A's data and header). Returns the keys merged so far.
     """
     keys = local_keys(K) if keys is None else keys
     new = np.setdiff1d(keys, merged)
     if comm.allreduce(len(new), op=MPI.SUM) > 0:
+        near = A.getNearNullSpace()
         A.axpy(1.0, K, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        if near.handle:  # petsc4py: 0 when there is none
+            A.setNearNullSpace(near)
         return np.union1d(merged, keys)
     A.axpy(1.0, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
     return merged

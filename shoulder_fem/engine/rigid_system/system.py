@@ -22,6 +22,7 @@ from shoulder_fem.engine.rigid_system.control import ControlledSystem
 from shoulder_fem.engine.rigid_system.corotation import RigidRegions
 from shoulder_fem.engine.rigid_system.deformable import DeformablePart
 from shoulder_fem.engine.rigid_system.dynamics import StepState
+from shoulder_fem.engine.rigid_system.fields import SplitFields
 from shoulder_fem.engine.rigid_system.guard import TrialGuard
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout, check_topology
 from shoulder_fem.engine.rigid_system.offsets import OffsetTies
@@ -113,7 +114,7 @@ def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, 
     return its
 
 
-class RigidSystem(SystemReports, ControlledSystem, OffsetTies):
+class RigidSystem(SystemReports, ControlledSystem, OffsetTies, SplitFields):
     """A system of a deformable body, rigid bodies, ties, springs and applied loads.
 
     Static by default (:meth:`solve`); with ``dynamic=True`` :meth:`step` also integrates the

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dolfinx
 import numpy as np
 
+from shoulder_fem.engine.block_split import split_options
 from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem, Tie
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.geometry import best_fit_rotation, patch_centroid
@@ -62,6 +63,8 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         dolfinx.fem.locate_dofs_topological(V, 3, ct_.find(bone.id))
         for bone in (S.HUMERUS, S.SCAPULA)
     ]
+    split = p.coupled_solver == "split"
+    solver = split_options() if split else {}
     system = RigidSystem(
         bodies,
         springs,
@@ -70,13 +73,16 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         surfaces=surfaces(ft, [t.surface for t in ties]),
         ties=ties,
         name="shoulder_coupled",
-        options=SNES_OPTIONS | dict(run.options or {}),
+        options=SNES_OPTIONS | solver | dict(run.options or {}),
         form_compiler_params=p.quadrature(),
         contact=contact,
         admissible=check,
         volumetric=volumetric,
         rigid_regions=bones,
+        near_nullspace=split,
     )
+    if split:  # the bones and their plates, the soft tissues, the actuator's control (border)
+        system.split_fields(np.concatenate(bones), [b.name for b in bodies if b is not actuator])
     humerus_dofs = bones[0][bones[0] < V.dofmap.index_map.size_local]
     X_h = V.tabulate_dof_coordinates()[humerus_dofs]
 

@@ -76,6 +76,7 @@ class ShoulderParameters:
     humerus_modulus_factor: float
     rotation_duration: float
     nodal_stress: str
+    coupled_solver: str
     part2_solver: str
     part2_level: str
     part1_bones: str

@@ -26,7 +26,8 @@ __all__ = ["PART2_KEYS", "check_source", "load_part1", "read_source"]
 
 #: The scene keys part 1 does not depend on (its bones are rigid): the scapula's stiffness
 #: factor and CT calibration and image (its density and modulus), the rotation's duration (the
-#: frame inertia of part 2 only), the nodal-stress recipe and part 2's linear solver.
+#: frame inertia of part 2 only), the nodal-stress recipe and the linear solvers of part 2 and of
+#: the coupled method.
 PART2_KEYS = (
     "scapula_modulus_factor",
     "ct_image",
@@ -35,6 +36,7 @@ PART2_KEYS = (
     "rotation_duration",
     "nodal_stress",
     "part2_solver",
+    "coupled_solver",
 )
 
 

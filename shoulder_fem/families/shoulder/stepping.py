@@ -575,6 +575,7 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("failed_steps", log.failed_steps, "1")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
+    recorder.set_probe("krylov_iterations", job.system.stats.krylov_iterations, "1")
     recorder.set_probe("shortened_newton_steps", job.system.stats.shortened_steps, "1")
     recorder.set_probe("newton_step_halvings", job.system.stats.step_halvings, "1")
     recorder.set_probe("jacobian_pattern_rebuilds", job.system.stats.pattern_rebuilds, "1")

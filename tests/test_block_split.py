@@ -107,7 +107,7 @@ def test_the_split_gives_lus_solution_and_its_choice_reaches_petsc():
         assert split.ksp["b"].getPC().getType() == "lu"
         assert split.ksp["b"].getPC().getFactorSolverType() == "mumps"
         assert "split_a_scaled_pc_gamg_threshold" not in (unused_user_options() or [])
-        assert it.stats.krylov_iterations > 2  # really iterative
+        assert it.stats.krylov_iterations > 2  # really iterative (measured 30 in 2 solves)
     finally:
         clear_user_options()
     comm = MPI.COMM_WORLD
@@ -141,8 +141,10 @@ def test_exact_blocks_make_the_split_exact_on_the_whole_main_block():
     pc.apply(a, pab)
     pab.axpy(-1.0, pa)
     pab.axpy(-1.0, pb)
-    assert pab.norm() < 1e-10 * pa.norm()
+    assert pab.norm() < 1e-10 * pa.norm()  # linear: only round-off (two MUMPS solves)
     per_solve = system.stats.krylov_iterations / system.stats.linear_solves
+    # measured 6.5 (13 iterations in 2 Newton steps), serial and 2 ranks; the CG + GAMG stiff
+    # field of the first test takes 15 a solve
     assert per_solve <= 12, per_solve
     for v in (a, b, pa, pb, pab):
         v.destroy()

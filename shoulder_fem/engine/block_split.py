@@ -1,7 +1,7 @@
 """A stiff field, a soft field and a small border: a block preconditioner (a PETSc python PC).
 
 For a Newton system that holds bones and soft tissue in one matrix (the coupled shoulder), LU of
-the whole is what a run costs (80 % of the coupled run at ``paper``). :class:`StiffSoftSplit`
+the whole is what a run costs (71-77 % of the coupled run at ``paper``). :class:`StiffSoftSplit`
 splits the unknowns into
 
 * field ``a``, the stiff one (the bones' free nodes and the plates tied to them): by default
@@ -50,8 +50,10 @@ def split_options(rtol: float = 1e-9, max_it: int = 300) -> dict:
 
     The stiff field's CG runs to a relative 1e-3, the soft field is factorized (MUMPS LU).
     Measured on the coupled shoulder's first Jacobian (a random right-hand side, to 1e-8):
-    FGMRES 48 / 56 / 55 iterations at coarse / medium / paper; with a single V-cycle for the
-    stiff field (a fixed preconditioner, GMRES) 270 / 326 / 243. Modified Gram-Schmidt: with
+    FGMRES 45 / 52 iterations at coarse / medium (48 / 56 / 55 at coarse / medium / paper with
+    the stiff field first); with a single V-cycle for the stiff field (a fixed preconditioner,
+    GMRES, stiff field first) 270 / 326 / 243. In whole runs (benchmarks/coupled_solvers.py)
+    42.7 / 47.7 / 45.7 a solve. Modified Gram-Schmidt: with
     the classical one the Arnoldi basis lost its orthogonality and the true residual
     stalled at 2e-2 while GMRES's estimate went on falling. Give the split its fields with
     :meth:`StiffSoftSplit.set_fields` before the first solve.
@@ -168,11 +170,10 @@ class StiffSoftSplit:
         blocks["ba"] = A.createSubMatrix(b, a)
         blocks["ab"] = A.createSubMatrix(a, b)
         for name in ("a", "b"):
-            ksp = self._sub_ksp(pc, name)
-            ksp.setOperators(blocks[name + name])
-            ksp.setUp()
-        for name in ("a", "b"):
             block = blocks[name + name]
+            ksp = self._sub_ksp(pc, name)
+            ksp.setOperators(block)
+            ksp.setUp()
             self._work["r" + name], self._work["z" + name] = block.createVecs()
             self._work["t" + name] = block.createVecs()[0]
         self.S = self.W = None
@@ -228,9 +229,8 @@ class StiffSoftSplit:
             other = "b" if field == "a" else "a"
             rhs = work["r" + field]
             rhs.array[:] = r_m[at[f"{field}_in_m"]]
-            if other in solved:  # less the coupling to the other field's last solution
-                work["z" + other].array[:] = z[at[f"{other}_in_m"]]
-                coupling = blocks[field + other]
+            if other in solved:  # less the coupling to the other field's last solution,
+                coupling = blocks[field + other]  # still in work["z" + other]
                 coupling.mult(work["z" + other], work["t" + field])
                 rhs.axpy(-1.0, work["t" + field])
             self.ksp[field].solve(rhs, work["z" + field])

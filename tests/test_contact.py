@@ -200,7 +200,10 @@ def test_assembly_matches_ufl_penalty_form(degree, master):
 @pytest.mark.mpi
 def test_penalty_column_exact_and_penetration_falls_with_penalty():
     """Uniaxial stress in a column on a rigid plane: p = E δ/(H + E/ε) exactly, penetration p/ε,
-    falling as the penalty ε rises."""
+    falling as the penalty ε rises. The penalty's stored energy 1/2 ∫ p (-g) dA is p²/(2ε) per
+    unit area, and its share of the energy, with the column's strain energy p² H/(2E), is the
+    penalty's share of the series compliance, (1/ε)/(1/ε + H/E) (what the shoulder's
+    ``glenohumeral_penalty_energy_share`` measures)."""
     H, delta = 2.0, 1e-3
     pens = []
     for factor in (10.0, 100.0, 1000.0):
@@ -216,6 +219,13 @@ def test_penalty_column_exact_and_penetration_falls_with_penalty():
         assert r["max_penetration"] == pytest.approx(p / eps, rel=1e-7)
         assert -col.reaction(2) == pytest.approx(r["force"][2], rel=1e-8)
         pens.append(r["max_penetration"])
+        assert r["penalty_energy"] == pytest.approx(p**2 / (2 * eps), rel=1e-7)
+        W = materials.LinearElastic(E, NU).strain_energy_density(ufl.sym(ufl.grad(col.u)))
+        form = dolfinx.fem.form(W * ufl.dx(domain=col.mesh))
+        column = MPI.COMM_WORLD.allreduce(dolfinx.fem.assemble_scalar(form))
+        assert column == pytest.approx(p**2 * H / (2 * E), rel=1e-7)
+        share = r["penalty_energy"] / (r["penalty_energy"] + column)
+        assert share == pytest.approx((1 / eps) / (1 / eps + H / E), rel=1e-7)
     assert pens[0] > 9 * pens[1] > 81 * pens[2]
 
 

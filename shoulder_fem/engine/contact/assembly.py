@@ -21,6 +21,7 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import output
 from shoulder_fem.engine.contact.balance import global_dofs, share_slaves
+from shoulder_fem.engine.contact.curved import lift_surfaces
 from shoulder_fem.engine.contact.evaluation import couplings, evaluate_pair, facet_projection
 from shoulder_fem.engine.contact.geometry import P2_SUBTRIANGLES, segment_rule, slave_rule
 from shoulder_fem.engine.contact.jacobian import add_to_pattern, jacobian_triplets, triplet_matrix
@@ -65,7 +66,7 @@ def _bc_rows(bcs, w_l2g: np.ndarray, bs: int, comm: MPI.Comm) -> np.ndarray:
     return np.unique(np.concatenate(comm.allgather(local)))
 
 
-def _gathered_master(V, Q, facet_tags, pair: ContactPair, node_rows) -> MasterMesh | None:
+def _gathered_master(V, Q, facet_tags, pair: ContactPair, node_rows, X) -> MasterMesh | None:
     """``pair``'s mesh master gathered on every rank (collective); None for a rigid master."""
     if not isinstance(pair.master, MeshSurface):
         return None
@@ -75,8 +76,14 @@ def _gathered_master(V, Q, facet_tags, pair: ContactPair, node_rows) -> MasterMe
             f"contact pair {pair.name!r}: tags {sorted(overlap)} are both slave and master"
         )
     what = f"contact pair {pair.name!r}, master"
-    mf = surface_facets(V, facet_tags, pair.master.tags, Q, what)
-    return gather_master(V, mf, V.mesh.comm, node_rows)
+    mf = surface_facets(V, facet_tags, pair.master.tags, Q, what, X)
+    return gather_master(V, mf, V.mesh.comm, node_rows, X)
+
+
+def _slave_facets(V, Q, facet_tags, pairs: Sequence[ContactPair], X) -> list:
+    """Every pair's slave facets on this rank, at the reference positions ``X`` (collective)."""
+    what = "contact pair {!r}, slave"
+    return [surface_facets(V, facet_tags, p.slave, Q, what.format(p.name), X) for p in pairs]
 
 
 class Contact:
@@ -163,17 +170,16 @@ class Contact:
         ``_slave_rows`` are their global rows; their ``p1`` are global CG1 dofs.
         """
         self._state = [None] * len(self.pairs)
-        found = [
-            surface_facets(self.V, facet_tags, p.slave, self.Q, f"contact pair {p.name!r}, slave")
-            for p in self.pairs
-        ]
+        #: the mid-edge nodes lifted onto curved surfaces (``ContactPair.curved``), all ranks
+        self._X, self.lifted = lift_surfaces(self.V, self.Q, facet_tags, self.pairs, self._X)
+        found = _slave_facets(self.V, self.Q, facet_tags, self.pairs, self._X)
         comm = self.comm if share else MPI.COMM_SELF  # COMM_SELF: every facet stays
         self._slaves, self._import = share_slaves(found, len(self._X), global_dofs(self.Q), comm)
         self._slave_rows = self._import.extend(self._node_rows)
         self._fixed = [fixed_points(sl, *rule) for sl in self._slaves]
         self._lam = [np.zeros((len(sl.nodes), 3)) for sl in self._slaves]
         self._masters = [
-            _gathered_master(self.V, self.Q, facet_tags, pair, self._node_rows)
+            _gathered_master(self.V, self.Q, facet_tags, pair, self._node_rows, self._X)
             for pair in self.pairs
         ]
 

@@ -23,6 +23,7 @@ RESULTANT_UNITS = {
     "centre_of_pressure": "m",
     "max_penetration": "m",
     "active_points": "1",
+    "penalty_energy": "J",
 }
 
 
@@ -47,6 +48,7 @@ def pair_resultants(
     local[7] = W.sum()
     local[8:11] = (st["p"][a, None] * W[:, None] * x).sum(axis=0)
     local[11] = np.count_nonzero(a)
+    local[12] = 0.5 * (st["p"][a] * -st["g"][a] * W).sum()
     total = comm.allreduce(local, op=MPI.SUM)
     pmax = comm.allreduce(float(st["p"].max(initial=0.0)), op=MPI.MAX)
     shear = np.linalg.norm(st["t"], axis=1) if len(st["t"]) else np.zeros(0)
@@ -62,6 +64,7 @@ def pair_resultants(
         centre_of_pressure=(total[8:11] / total[6]) if total[6] > 0 else None,
         max_penetration=pen,
         active_points=int(total[11]),
+        penalty_energy=float(total[12]),
     )
 
 
@@ -77,7 +80,9 @@ def resultants(
     Returns:
         Per pair: force on the slave (N), moment about ``point`` (N m), normal force (N),
         area in contact (m², reference), maximum pressure (Pa), maximum shear (Pa), centre
-        of pressure (m; None without contact), largest penetration (m), active points. With
+        of pressure (m; None without contact), largest penetration (m), active points, and
+        the energy the penalty stores in the overlap, 1/2 sum p (-g) dA (J; exact for the linear
+        law p = eps (-g), the elastic energy of the penalty's own compliance 1/eps). With
         the pairs' ``slaves`` given: per pair, those of each tag value of its slave
         (:func:`tag_resultants`).
     """

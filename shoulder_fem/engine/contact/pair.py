@@ -36,6 +36,9 @@ class ContactPair:
             that crosses g = 0 then changes the pressure and the tangent gradually: where many
             points graze a sliding faceted surface, Newton no longer cycles between active
             sets. 0: the plain penalty law.
+        curved: Lift the mid-edge nodes of both P2 surfaces onto the smooth surfaces through
+            their vertices and vertex normals (:mod:`~.curved`): the contact then sees curved
+            facets where the mesh has flat ones (no effect on P1 surfaces or a rigid master).
     """
 
     name: str
@@ -49,6 +52,7 @@ class ContactPair:
     candidates: int = 12
     search_depth: float = math.inf
     smoothing: float = 0.0
+    curved: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "slave", tuple(int(t) for t in np.atleast_1d(self.slave)))

@@ -101,7 +101,9 @@ def _oriented_nodes(V, Q, facets: np.ndarray, X_all: np.ndarray, degree: int):
     return nodes, p1, kept, interior
 
 
-def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
+def surface_facets(
+    V, facet_tags, tags: Sequence[int], Q, what: str, X_all: np.ndarray | None = None
+) -> Facets:
     """This rank's boundary facets with the tag values ``tags`` (collective).
 
     Args:
@@ -110,6 +112,7 @@ def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
         tags: Tag values of the surface.
         Q: The scalar CG1 space of the pressure fields.
         what: Names the surface in error messages.
+        X_all: The reference position of every local node (default: the mesh's).
 
     Raises:
         ContactError: Not a tetrahedral mesh or not P1/P2, an unknown tag, a tagged facet
@@ -127,9 +130,9 @@ def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
     mesh.topology.create_connectivity(tdim - 1, tdim)
     mesh.topology.create_connectivity(tdim, tdim - 1)
     facets = _tagged_facets(mesh, facet_tags, tags, what)
-    X_all = V.tabulate_dof_coordinates()
+    X_mesh = V.tabulate_dof_coordinates()
     nn = 3 if degree == 1 else 6
-    nodes, p1, kept, interior = _oriented_nodes(V, Q, facets, X_all, degree)
+    nodes, p1, kept, interior = _oriented_nodes(V, Q, facets, X_mesh, degree)
     interior = mesh.comm.allreduce(interior, op=MPI.SUM)
     if interior:
         raise ContactError(
@@ -137,11 +140,13 @@ def surface_facets(V, facet_tags, tags: Sequence[int], Q, what: str) -> Facets:
         )
     nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, nn)
     p1 = np.asarray(p1, dtype=np.int64).reshape(-1, 3)
-    X = X_all[nodes] if len(nodes) else np.zeros((0, nn, 3))
+    X = X_mesh[nodes] if len(nodes) else np.zeros((0, nn, 3))
     if degree == 2 and len(nodes):
         mid = 0.5 * (X[:, [0, 1, 2]] + X[:, [1, 2, 0]])
-        if not np.allclose(mid, X[:, 3:], atol=1e-9 * np.ptp(X_all, axis=0).max()):
+        if not np.allclose(mid, X[:, 3:], atol=1e-9 * np.ptp(X_mesh, axis=0).max()):
             raise ContactError(f"{what}: unexpected P2 edge-dof layout (mid-edge nodes not found)")
+    if X_all is not None and len(nodes):
+        X = X_all[nodes]
     n_local_facets = mesh.comm.allreduce(len(nodes), op=MPI.SUM)
     if n_local_facets == 0:
         raise ContactError(f"{what}: the facet tags {list(tags)} select no boundary facet")
@@ -197,7 +202,9 @@ def _add_p2_parents(master: MasterMesh, imap, facets: Facets, comm: MPI.Comm, or
     master.tri_mu = np.concatenate(comm.allgather(mu.reshape(-1, 3, 3)))
 
 
-def gather_master(V, facets: Facets, comm: MPI.Comm, node_rows: np.ndarray) -> MasterMesh:
+def gather_master(
+    V, facets: Facets, comm: MPI.Comm, node_rows: np.ndarray, X_all: np.ndarray | None = None
+) -> MasterMesh:
     """Gather a mesh master's triangles and nodes on every rank (collective).
 
     Args:
@@ -205,6 +212,7 @@ def gather_master(V, facets: Facets, comm: MPI.Comm, node_rows: np.ndarray) -> M
         facets: This rank's facets of the master surface.
         comm: The mesh's communicator.
         node_rows: Global rows (in the solved space) of the 3 components of every local node.
+        X_all: The reference position of every local node (default: the mesh's).
     """
     imap = V.dofmap.index_map
     sub = [(0, 1, 2)] if facets.nodes.shape[1] == 3 else P2_SUBTRIANGLES
@@ -229,7 +237,7 @@ def gather_master(V, facets: Facets, comm: MPI.Comm, node_rows: np.ndarray) -> M
     g_owned = (
         imap.local_to_global(owned.astype(np.int32)) if len(owned) else np.zeros(0, dtype=np.int64)
     )
-    X_owned = V.tabulate_dof_coordinates()[owned]
+    X_owned = (V.tabulate_dof_coordinates() if X_all is None else X_all)[owned]
     parts_g = comm.allgather(g_owned)
     parts_X = comm.allgather(X_owned)
     rows = np.concatenate(comm.allgather(node_rows[owned])).reshape(-1, 3).astype(np.int64)

@@ -11,20 +11,31 @@ says how far the penalty, not the cartilage, sets the pressure (issue 20, item 3
 node to the point of the layer's bonded face straight below it (the humeral layer's at the
 humeral articular node nearest to the glenoid node's current position); a rigid motion of the
 layer does not change it.
+
+That nodal measure is noisy where a patch is a few elements wide (a loaded node whose layer
+bulges reads a thickening). :class:`EnergyShare` measures the same split globally: in springs in
+series under one load each stores energy in proportion to its compliance, so the penalty's
+share of the joint's normal compliance is its stored energy 1/2 int p (-g) dA
+(:func:`~shoulder_fem.engine.contact.output.pair_resultants`) over that plus the two cartilage
+layers' strain energy int W dV.
 """
 
 from __future__ import annotations
 
 import dolfinx
 import numpy as np
+import ufl
 from dolfinx.cpp.mesh import entities_to_geometry as _entities_to_geometry
 from scipy.spatial import cKDTree
 
 from shoulder_fem.engine.contact.geometry import closest_points_on_triangles
 from shoulder_fem.families.shoulder.geometry import gather_rows
+from shoulder_fem.families.shoulder.interactions import soft_tissue_laws
+from shoulder_fem.forms import materials
+from shoulder_fem.forms.kinematics import deformation_gradient, right_cauchy_green
 from shoulder_fem.meshes import shoulder as S
 
-__all__ = ["PenaltyShare"]
+__all__ = ["EnergyShare", "PenaltyShare"]
 
 #: Bonded-face triangles tested per articular node (the nearest centroids).
 CANDIDATES = 12
@@ -126,3 +137,43 @@ class PenaltyShare:
             "glenoid_layer": layers[0],
             "humeral_layer": layers[1],
         }
+
+
+class EnergyShare:
+    """The penalty's share of the joint's normal compliance, by stored energy (collective).
+
+    Args:
+        u: The displacement (P2).
+        cell_tags: The mesh's cell tags (the two cartilage layers: :data:`meshes.shoulder`).
+        law: The cartilage's law; with ``isochoric`` only its isochoric energy is counted (the
+            incompressible option, whose volumetric energy vanishes with the volume change).
+        quadrature: Form-compiler parameters of the volume forms.
+    """
+
+    def __init__(self, u: dolfinx.fem.Function, cell_tags, law, isochoric: bool, quadrature):
+        mesh = u.function_space.mesh
+        self.comm = mesh.comm
+        if isochoric:
+            law = materials.Isochoric(law)
+        dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=quadrature)
+        W = law.strain_energy(right_cauchy_green(deformation_gradient(u)))
+        ids = (S.HUMERAL_CARTILAGE.id, S.GLENOID_CARTILAGE.id)
+        self.form = dolfinx.fem.form(W * dx(ids), form_compiler_params=quadrature)
+
+    @classmethod
+    def of_model(cls, u: dolfinx.fem.Function, cell_tags, params) -> EnergyShare:
+        """The share for the shoulder's cartilage law (``ShoulderParameters`` ``params``)."""
+        isochoric = params.soft_tissue_formulation == "incompressible"
+        return cls(u, cell_tags, soft_tissue_laws(params)[0], isochoric, params.quadrature())
+
+    def cartilage_energy(self) -> float:
+        """The two cartilage layers' strain energy (J)."""
+        local = dolfinx.fem.assemble_scalar(self.form)
+        return float(self.comm.allreduce(local))
+
+    def __call__(self, penalty_energy: float) -> dict[str, float]:
+        """``share`` = penalty / (penalty + cartilage) energy, and both energies (J)."""
+        layers = self.cartilage_energy()
+        total = penalty_energy + layers
+        share = penalty_energy / total if total > 0 else 0.0
+        return {"share": share, "penalty_energy": penalty_energy, "cartilage_energy": layers}

@@ -196,6 +196,7 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
             slave=(S.MARKERS["glenoid_articular"].id,),
             master=MeshSurface((S.MARKERS["humeral_articular"].id,)),
             penalty=params.contact_penalty,
+            curved=params.contact_surfaces == "curved",
         )
     ]
     bones = {"humerus": params.humeral_head_contact, "scapula": params.scapula_contact}
@@ -212,6 +213,7 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
                     penalty=params.muscle_contact_penalty,
                     search_depth=params.muscle_contact_depth,
                     smoothing=params.muscle_contact_smoothing,
+                    curved=params.muscle_contact_surfaces == "curved",
                 )
             )
     return Contact(

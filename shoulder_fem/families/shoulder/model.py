@@ -58,6 +58,8 @@ class ShoulderParameters:
     max_cutbacks: int
     contact_penalty: float
     muscle_contact: str
+    contact_surfaces: str
+    muscle_contact_surfaces: str
     muscle_contact_penalty: float
     muscle_contact_depth: float
     muscle_contact_smoothing: float

@@ -31,7 +31,7 @@ from shoulder_fem.engine.rigid_system import RigidBody, RigidSystem
 from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.solver import ConvergenceError, StepperStats
 from shoulder_fem.families.base import RunContext
-from shoulder_fem.families.shoulder.compliance import PenaltyShare
+from shoulder_fem.families.shoulder.compliance import EnergyShare, PenaltyShare
 from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, unit
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
@@ -440,7 +440,9 @@ class AngleOutputs:
         self.body = dolfinx.fem.Function(dolfinx.fem.FunctionSpace(mesh, ("DG", 0)), name="body")
         tags = job.probe.cell_tags
         self.body.x.array[tags.indices] = tags.values
-        self.penalty_share = PenaltyShare(job.u, job.probe.facet_tags, model.params.contact_penalty)
+        p = model.params
+        self.penalty_share = PenaltyShare(job.u, job.probe.facet_tags, p.contact_penalty)
+        self.energy_share = EnergyShare.of_model(job.u, tags, p)
 
     def angle(self) -> float:
         """The humerus's twist about its shaft axis (rad): the progress angle."""
@@ -509,6 +511,10 @@ class AngleOutputs:
         rec.add_series_point("glenohumeral_penalty_share", x, share["share"], "deg", "1")
         for key in ("overlap", "glenoid_layer", "humeral_layer"):
             rec.add_series_point(f"glenohumeral_{key}", x, share[key], "deg", "m")
+        energy = self.energy_share(res["penalty_energy"])
+        rec.add_series_point("glenohumeral_penalty_energy_share", x, energy["share"], "deg", "1")
+        for key in ("penalty_energy", "cartilage_energy"):
+            rec.add_series_point(f"glenohumeral_{key}", x, energy[key], "deg", "J")
         record_muscle_bone(rec, self.job.contact, x)
 
     def _muscle_series(self, x: float) -> None:

@@ -67,6 +67,7 @@ CONTACT_SERIES = (
     ("glenohumeral_glenoid_layer", "glenoid layer", 1e6, "um"),
     ("glenohumeral_humeral_layer", "humeral layer", 1e6, "um"),
     ("glenohumeral_penalty_share", "penalty share", 1e2, "%"),
+    ("glenohumeral_penalty_energy_share", "energy share", 1e2, "%"),
 )
 
 #: Where the Newton time went (probes ``<stepping>_time_<key>_s`` of the runs), in table order.

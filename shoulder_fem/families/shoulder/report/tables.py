@@ -321,7 +321,11 @@ def _markdown_penalty(report: dict) -> list[str]:
         "bones approach by the penalty's overlap p / eps plus the two cartilage layers' "
         "compressions (each layer's thickness change under the glenoid's nodes in contact), "
         "all weighted by the nodal pressure; the penalty share is the overlap's part of that "
-        "approach (issue 20: at most 10 % for a contact that does not set the pressure).",
+        "approach (issue 20: at most 10 % for a contact that does not set the pressure). "
+        "Energy share: the penalty's stored energy over it plus the cartilages' strain energy, "
+        "the penalty's share of the joint's series compliance measured over the whole contact "
+        "(the nodal measure reads nodal pressures, which average the contact points' over "
+        "each node's area, and layers that bulge at a small patch's edge).",
         "",
         _markdown_table(head, table),
     ]

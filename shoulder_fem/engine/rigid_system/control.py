@@ -252,9 +252,6 @@ class ControlledSystem:
         x0 = problem.x_from_state(targets=False).copy()
         x = x0.duplicate()
         admissible = self._guard.admissible
-        start = getattr(admissible, "start", None)
-        if start is not None:  # a test relative to the state the move starts from
-            start()
         scale = 1.0
         for _ in range(PREDICTOR_HALVINGS):
             x0.copy(x)

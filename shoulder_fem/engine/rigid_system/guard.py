@@ -30,9 +30,7 @@ class TrialGuard:
         update_state: Sets the model's state from a reduced vector.
         residual: The SNES residual callback ``residual(snes, x, r)``.
         admissible: Callable() -> bool at the current state, the same on every rank; None:
-            only the residual's finiteness is tested. If it has a ``start()`` method, that is
-            called (collectively) before the first trial of every Newton step, the model then
-            at the iterate the step starts from (a test relative to it).
+            only the residual's finiteness is tested.
         stats: Counts the Newton steps shortened (``shortened_steps``) and the halvings
             (``step_halvings``).
         comm: The communicator.
@@ -75,9 +73,6 @@ class TrialGuard:
         if self._trial is None or self._trial.getSizes() != x.getSizes():
             self.destroy()
             self._trial, self._r = x.duplicate(), x.duplicate()
-        start = getattr(self.admissible, "start", None)
-        if start is not None:  # the model is at x: the last evaluation was J(x)
-            start()
         corrected = bool(self.correct(x, y)) if self.correct is not None else False
         scale = 1.0
         for _ in range(self.max_halvings):

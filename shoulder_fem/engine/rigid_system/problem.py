@@ -218,7 +218,7 @@ class ReducedProblem:
     def set_control(self, control: TravelControl) -> None:
         """Solve for ``control``'s travel: its body's translation rows become the control's."""
         self.control = control
-        if self.P is not None:
+        if self.P is not None and self._control_work is None:
             self._control_work = self.P.createVecs()  # (reduced, FE)
 
     def _controlled(self, b: int) -> bool:

@@ -41,7 +41,7 @@ from shoulder_fem.families.shoulder.outputs import UNCORRECTED, save_npz, save_r
 from shoulder_fem.families.shoulder.part2 import SurfaceForces, run_part2
 from shoulder_fem.families.shoulder.reuse import load_part1
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
-from shoulder_fem.families.shoulder.trial import SoftTissueCheck, onset_contact
+from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.families.shoulder.twist import rigid_twist
 from shoulder_fem.io.resources import release_memory
 from shoulder_fem.io.results import Recorder
@@ -308,7 +308,7 @@ class Part1:
         actuator = RigidBody("actuator", origin, prescribed=True)
         self.springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
         ties, tied = part1_ties(ft, ct_, p)
-        check = SoftTissueCheck(u, ct_, onset_contact(contact, p))
+        check = SoftTissueCheck(u, ct_)
         self.system = system = RigidSystem(
             [humerus, scapula, actuator],
             self.springs,

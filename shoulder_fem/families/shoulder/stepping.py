@@ -10,12 +10,11 @@ the tangent ``dx/dθ`` (one back-substitution with the last factorization) and i
 the step before (:meth:`AngleStepper.predictor`). The increments adapt to the Newton iterations
 (:data:`TARGET_ITERATIONS`); the way to an output angle is split into equal steps, so the
 outputs every ``output_angle`` are exact and no sliver of a step is left before them
-(:func:`run_steps`).
+(:func:`run_steps`). An open unloaded joint is first closed by travel (:mod:`.engage`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 from collections.abc import Callable
@@ -32,6 +31,7 @@ from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.solver import ConvergenceError, StepperStats
 from shoulder_fem.families.base import RunContext
 from shoulder_fem.families.shoulder.compliance import EnergyShare, PenaltyShare
+from shoulder_fem.families.shoulder.engage import engage
 from shoulder_fem.families.shoulder.geometry import swing_angle, twist_angle, unit
 from shoulder_fem.families.shoulder.measures import Probe, VonMises, cap_contact_angles
 from shoulder_fem.families.shoulder.model import ShoulderModel, ShoulderParameters
@@ -39,7 +39,9 @@ from shoulder_fem.families.shoulder.newton import (
     DIVERGENCE_TOLERANCE,
     FALLBACK_LINESEARCH,
     FALLBACK_MAX_IT,
+    OUTPUT_ATOL,
     SNES_OPTIONS,
+    output_tolerance,
     solve_with_fallback,
 )
 from shoulder_fem.families.shoulder.outputs import (
@@ -82,25 +84,6 @@ ACTUATION_DIRECTION = (-1.0, 0.0, 0.0)
 #: 1e-3 N a converged step is within 1e-8 rad (6e-7 deg) of its target angle.
 ANGLE_SCALE = 1e5
 
-#: Newton's absolute tolerance (N) at the output angles (:meth:`AngleStepper.polish`): a step
-#: stops at ``snes_atol`` = 1e-3 N (1e-5 of the joint forces), an output goes on to 1e-6 N, one
-#: iteration more at most (Newton converges quadratically there), so that the transferred loads
-#: balance part 1's springs to about 1e-8 of them (issue 21) and what the methods are compared
-#: on is exact to well below what separates them.
-OUTPUT_ATOL = 1e-6
-
-
-@contextlib.contextmanager
-def output_tolerance(system: RigidSystem, tolerance: float = OUTPUT_ATOL):
-    """Newton's absolute tolerance at ``tolerance`` (N) within the block (if that is tighter)."""
-    atol = system.snes.getTolerances()[1]
-    system.set_options({"snes_atol": min(tolerance, atol)})
-    try:
-        yield
-    finally:
-        system.set_options({"snes_atol": atol})
-
-
 #: Newton iterations per step that the adaptive increments aim at: the next increment is the
 #: last one times sqrt(TARGET_ITERATIONS / iterations), within [1/2, 2].
 TARGET_ITERATIONS = 5
@@ -118,6 +101,8 @@ class StepLog:
     fallbacks: int = 0
     newton_iterations: int = 0
     history: list = field(default_factory=list)
+    engaging_steps: int = 0  # the converged solves of :func:`.engage.engage` (among steps)
+    engaged_angle: float = 0.0  # where it handed over to the angle control (rad)
 
 
 # ---- the angle-controlled stepper ------------------------------------------------------------
@@ -366,6 +351,9 @@ def drive_rotation(
         stepper.start()
         stepper.polish()
         on_output(0.0)
+        stop = engage(stepper)
+        if stop is not None:
+            return stepper.theta, stepper.log, stop
         n_outputs = int(math.floor(params.final_angle / every + 1e-9))
         goals = [k * every for k in range(1, n_outputs + 1)]
         if params.final_angle - (goals[-1] if goals else 0.0) > 1e-9:
@@ -579,6 +567,8 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("final_angle_deg", math.degrees(final), "deg")
     recorder.set_probe("steps", log.steps, "1")
     recorder.set_probe("failed_steps", log.failed_steps, "1")
+    recorder.set_probe("engaging_steps", log.engaging_steps, "1")
+    recorder.set_probe("engaged_angle_deg", math.degrees(log.engaged_angle), "deg")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
     recorder.set_probe("krylov_iterations", job.system.stats.krylov_iterations, "1")

@@ -11,16 +11,6 @@ only, never on the equations, and lie far outside the default model's converged 
 incompressible option's converged states reach them where it stops on the levels' 25 mm muscles
 (a subscapularis element at its insertion's edge; with 8 mm muscles it goes on to the cartilage's
 edge: README, "Incompressible soft tissue").
-
-With the glenohumeral contact given, a Newton step (or a predictor) that starts with the joint
-out of contact may not take it deeper than :data:`ONSET_DEPTH` (:meth:`SoftTissueCheck.start`):
-the contact's onset. From an open joint (the unloaded state of the curved articular surfaces,
-``contact_surfaces = curved``) the Newton step knows nothing of the contact's stiffness and
-drove the head millimetres into the glenoid: the first step's residual was 5 600 N and the step
-was cut back twice in part 1 at ``coarse``. Limited, the step stops where the surfaces meet, and
-the next Newton step has their stiffness. A step that starts in contact is not limited. The
-limit is on with the curved surfaces only (:func:`onset_contact`): the flat facets overlap
-from the start, and the runs on them are kept as they were measured.
 """
 
 from __future__ import annotations
@@ -38,14 +28,11 @@ from shoulder_fem.forms.kinematics import (
 )
 from shoulder_fem.meshes import shoulder as S
 
-__all__ = ["ONSET_DEPTH", "TRIAL_I1BAR_MAX", "SoftTissueCheck", "onset_contact"]
+__all__ = ["TRIAL_I1BAR_MAX", "SoftTissueCheck"]
 
 #: The largest I1bar allowed in a Newton trial state (beta (I1bar - 3) = 100 for the muscles:
 #: an exponential factor of 3e43, still far from overflowing).
 TRIAL_I1BAR_MAX = 103.0
-
-#: The deepest glenohumeral overlap a Newton step from an open joint may reach (m).
-ONSET_DEPTH = 1e-4
 
 #: The reference points of the check: a tetrahedron's vertices, edge midpoints and centroid.
 _VERTICES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
@@ -55,25 +42,15 @@ POINTS = np.vstack(
 )
 
 
-def onset_contact(contact, params):
-    """The contact whose onset :class:`SoftTissueCheck` limits: with curved surfaces only."""
-    return contact if params.contact_surfaces == "curved" else None
-
-
 class SoftTissueCheck:
     """J and I1bar of the soft tissues of ``u`` at :data:`POINTS` (collective).
 
     Args:
         u: The displacement (P2).
         cell_tags: The mesh's cell tags (soft tissues: :data:`meshes.shoulder.SOFT`).
-        contact: The joint's contact (its ``glenohumeral`` pair limits the onset, module
-            docstring), or None.
     """
 
-    def __init__(self, u: dolfinx.fem.Function, cell_tags: dolfinx.mesh.MeshTags, contact=None):
-        self.contact = contact
-        #: Whether the joint was open (no glenohumeral contact point) where the step started.
-        self.open = False
+    def __init__(self, u: dolfinx.fem.Function, cell_tags: dolfinx.mesh.MeshTags):
         mesh = u.function_space.mesh
         self.comm = mesh.comm
         n_owned = mesh.topology.index_map(3).size_local
@@ -110,17 +87,7 @@ class SoftTissueCheck:
         J, i1bar = self.values()
         with np.errstate(invalid="ignore"):
             ok = bool(np.all((J > 0.0) & (i1bar < TRIAL_I1BAR_MAX)))
-        if not self.comm.allreduce(ok, op=MPI.LAND):
-            return False
-        if self.contact is None or not self.open:
-            return True
-        # the contact is evaluated here once for the trial's residual too (cached by state)
-        return self.contact.resultants()["glenohumeral"]["max_penetration"] <= ONSET_DEPTH
-
-    def start(self) -> None:
-        """Before the trials of a Newton step: is the joint open where it starts?"""
-        if self.contact is not None:
-            self.open = self.contact.resultants()["glenohumeral"]["active_points"] == 0
+        return bool(self.comm.allreduce(ok, op=MPI.LAND))
 
     def __call__(self) -> bool:
         """:meth:`admissible` (the callable that :class:`RigidSystem` takes)."""

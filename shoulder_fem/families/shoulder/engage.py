@@ -30,7 +30,7 @@ from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.solver import ConvergenceError
 from shoulder_fem.families.shoulder.newton import solve_with_fallback
 
-__all__ = ["ENGAGE_FORCE", "ENGAGE_TRAVEL", "TRAVEL_SCALE", "engage", "joint_force"]
+__all__ = ["ENGAGE_FORCE", "ENGAGE_TRAVEL", "TRAVEL_SCALE", "angle_now", "engage", "joint_force"]
 
 logger = logging.getLogger(__name__)
 
@@ -49,13 +49,23 @@ def joint_force(contact) -> float:
     return contact.resultants()["glenohumeral"]["normal_force"]
 
 
-def engage(stepper) -> str | None:
+def angle_now(stepper) -> float:
+    """The humeral twist at the current state (rad; collective)."""
+    return stepper.measure(False).value
+
+
+def engage(stepper, first: float) -> str | None:
     """Engage an open joint by travel, then hand back to the angle control (collective).
 
     Args:
         stepper: The :class:`~.stepping.AngleStepper`, its angle control set (after its
             ``start``); its ``theta``, ``tangent`` and ``log`` (``steps``,
             ``engaging_steps``, ``engaged_angle``) are updated.
+        first: The first angle the stepping must land on (rad, an output or the final
+            angle). The engagement also ends from a quarter of it on, and a solve that passes
+            half of it is taken back with half the travel: the angle steps always have the
+            way to it (``--set final_angle=1deg`` would otherwise have been engaged past it,
+            to 1.58 deg at ``coarse``).
 
     Returns:
         None, or why it stopped (more than 2 x ``max_cutbacks`` failed solves; the state is the
@@ -75,7 +85,7 @@ def engage(stepper) -> str | None:
     control = system.set_control(stepper.actuator.name, twist.direction, travel, TRAVEL_SCALE)
     control.origin = twist.origin  # the travel is counted from the unloaded plate
     delta, fails = ENGAGE_TRAVEL, 0
-    while joint_force(stepper.contact) < ENGAGE_FORCE:
+    while joint_force(stepper.contact) < ENGAGE_FORCE and angle_now(stepper) < 0.25 * first:
         snap = system.snapshot()
         control.target = stepper.travel() + delta
         name = f"{stepper.label} engaging, travel {control.target * 1e3:.3f} mm"
@@ -93,6 +103,11 @@ def engage(stepper) -> str | None:
                 )
             delta *= 0.5
             continue
+        if angle_now(stepper) > 0.5 * first:  # too far: taken back, not a failure
+            system.restore(snap)
+            log.newton_iterations += its
+            delta *= 0.5
+            continue
         stepper.contact.commit()
         log.steps += 1
         log.engaging_steps += 1
@@ -103,7 +118,7 @@ def engage(stepper) -> str | None:
             "iterations",
             stepper.label,
             stepper.travel() * 1e3,
-            math.degrees(stepper.measure(False).value),
+            math.degrees(angle_now(stepper)),
             joint_force(stepper.contact),
             its,
         )

@@ -351,13 +351,13 @@ def drive_rotation(
         stepper.start()
         stepper.polish()
         on_output(0.0)
-        stop = engage(stepper)
-        if stop is not None:
-            return stepper.theta, stepper.log, stop
         n_outputs = int(math.floor(params.final_angle / every + 1e-9))
         goals = [k * every for k in range(1, n_outputs + 1)]
         if params.final_angle - (goals[-1] if goals else 0.0) > 1e-9:
             goals.append(params.final_angle)
+        stop = engage(stepper, goals[0])
+        if stop is not None:
+            return stepper.theta, stepper.log, stop
         for goal in goals:
             stop = stepper.reach(goal)
             if stop is not None:

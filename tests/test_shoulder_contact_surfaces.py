@@ -3,8 +3,10 @@
 With the articular surfaces' mid-edge nodes lifted onto the smooth surfaces, the unloaded
 joint is open (the flat facets' corners overlapped), and the angle-controlled Newton system is
 nearly singular there: without :mod:`shoulder_fem.families.shoulder.engage` the coupled run to
-3 deg at ``coarse`` fails 3 steps (measured with ``ENGAGE_FORCE`` = 0: 3 cut-backs, 90 Newton
-iterations). The joint is now engaged by the plate's travel first. Serial and ``mpirun -n 2``.
+3 deg at ``coarse`` fails 4 steps (measured with ``ENGAGE_FORCE`` = 0 on the incompressible
+cartilage at 200 MPa/mm: 4 cut-backs, 115 Newton iterations; 3 and 90 on the compressible one at
+100 MPa/mm). The joint is now engaged by the plate's travel first (measured: 7 solves to 1.57
+deg, no step failed, 51 Newton iterations). Serial and ``mpirun -n 2``.
 """
 
 from __future__ import annotations
@@ -33,9 +35,9 @@ def test_the_open_joint_is_engaged_by_travel_and_no_coupled_step_fails(comm_tmp)
     assert p["engaging_steps"] >= 1 and 0.0 < p["engaged_angle_deg"] < 3.0, p
     area = result.series["contact_area"]["y"]
     assert area[0] == 0.0 and area[-1] > 0.0, area  # open at 0 deg, in contact at 3 deg
-    # the penalty's share of the energy stays within its own compliance's order (1/eps
-    # against the layers' ~0.16 mm/MPa: 6 %; 20-26 % measured at coarse, where the patch spans
-    # few facets): a sanity bound, not an independent number
+    # the penalty's share of the energy stays within its own compliance's order (6-16 %
+    # measured at coarse over 10-60 deg, where the patch spans few facets): a sanity bound,
+    # not an independent number
     share = result.series["glenohumeral_penalty_energy_share"]["y"][-1]
     assert 0.0 < share < 0.5, share
 
@@ -43,10 +45,14 @@ def test_the_open_joint_is_engaged_by_travel_and_no_coupled_step_fails(comm_tmp)
 def test_the_engagement_changes_the_path_not_the_state(comm_tmp, monkeypatch):
     """Part 1 to 3 deg with and without the engagement (``ENGAGE_FORCE`` = 0: the angle control
     from the open joint, as before): the same equilibrium, to the solver's tolerance (the
-    outputs are polished to |F| < 1e-6 N)."""
-    engaged = api.run(_scene(), "decoupled", "coarse", comm_tmp / "engaged")
+    outputs are polished to |F| < 1e-6 N). The incompressible cartilage's multipliers are
+    converged to 1e-6 here: at the scene's 1e-4 each path stops its updates at its own state
+    within that tolerance (measured: the joint forces 1.5e-4 apart; 1e-9 is out of the steps'
+    Newton tolerance's reach)."""
+    tight = "soft_tissue_volume_tolerance=1e-6"
+    engaged = api.run(_scene(tight), "decoupled", "coarse", comm_tmp / "engaged")
     monkeypatch.setattr(engage, "ENGAGE_FORCE", 0.0)
-    direct = api.run(_scene(), "decoupled", "coarse", comm_tmp / "direct")
+    direct = api.run(_scene(tight), "decoupled", "coarse", comm_tmp / "direct")
     assert engaged.status == direct.status == "ok"
     assert direct.probes["engaging_steps"] == 0 and engaged.probes["engaging_steps"] >= 1
     for key in ("contact_force", "subscapularis_force", "infraspinatus_force", "max_pressure"):

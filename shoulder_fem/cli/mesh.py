@@ -28,9 +28,9 @@ ELEMENT = {
     "cell": "straight-sided tetrahedron",
     "bone": "P2 displacement (compressible, nu = 0.3)",
     "cartilage_and_muscle": (
-        "sized for Taylor-Hood P2/P1 (P2 displacement, continuous P1 pressure per body); by "
-        "default the runs solve P2 displacement alone (compressible); with "
-        "soft_tissue_formulation = incompressible the P1 pressure is condensed out, not solved"
+        "sized for Taylor-Hood P2/P1 (P2 displacement, continuous P1 pressure per body); the "
+        "runs solve P2 displacement, the P1 pressure of the incompressible bodies condensed "
+        "out, not solved (the cartilages by default; soft_tissue_formulation)"
     ),
     "dof_count": (
         "dofs = dofs_displacement (3 x P2 nodes of the mesh) + dofs_pressure (P1 vertices of "

@@ -163,7 +163,7 @@ class EnergyShare:
     @classmethod
     def of_model(cls, u: dolfinx.fem.Function, cell_tags, params) -> EnergyShare:
         """The share for the shoulder's cartilage law (``ShoulderParameters`` ``params``)."""
-        isochoric = params.soft_tissue_formulation == "incompressible"
+        isochoric = params.incompressible_cartilage
         return cls(u, cell_tags, soft_tissue_laws(params)[0], isochoric, params.quadrature())
 
     def cartilage_energy(self) -> float:

@@ -149,8 +149,10 @@ def adopt(recorder: Recorder, scratch: Recorder, replace_plain: bool) -> None:
         recorder.count(key, n)
 
 
-def _resolve(part1, k: int, moved: dict, log: StepLog, tolerance: float) -> int:
-    """Part 1 from output ``k``'s state with the bones' offsets; Newton iterations.
+def _resolve(part1, k: int, moved: dict, log: StepLog, tolerance: float) -> tuple[int, int]:
+    """Part 1 from output ``k``'s state with the bones' offsets: (its solve's, the updates') its.
+
+    The updates: the incompressible tissue's multipliers after the solve (:func:`augment`).
 
     ``moved``: {body: (callable(X) -> offsets at its tied nodes, {spring: offset})}.
     """
@@ -164,9 +166,9 @@ def _resolve(part1, k: int, moved: dict, log: StepLog, tolerance: float) -> int:
     system.control.target = target
     name = f"part1 correction {math.degrees(part1.transfer.angles[k]):.0f} deg"
     its = solve_with_fallback(system, name, snap, None, log)
-    its += augment(system, name, tolerance)
+    updates = augment(system, name, tolerance)
     part1.contact.commit()
-    return its
+    return its, updates
 
 
 def correct_part1(
@@ -214,7 +216,7 @@ def correct_part1(
                     for body, o in by_body.items()
                 }
                 try:
-                    its = _resolve(part1, k, moved, log, tolerance)
+                    its, updates = _resolve(part1, k, moved, log, tolerance)
                 except ConvergenceError as err:
                     stop = f"part 1's correction did not converge at {deg:.0f} deg ({err.reason})"
                     logger.error("%s", stop)
@@ -222,11 +224,19 @@ def correct_part1(
                 corrected.spring_offsets.append(by_body["scapula"].springs)
                 corrected.point_offsets.append(moved["scapula"][0](corrected.points))
                 scratch.add_series_point("part1_correction_iterations", deg, its, "deg", "1")
+                scratch.add_series_point(
+                    "part1_correction_volume_iterations", deg, updates, "deg", "1"
+                )
                 for body, o in by_body.items():
                     move = float(np.linalg.norm(o.nodes, axis=1).max(initial=0.0))
                     name = "part1_correction_offset" + ("" if body == "scapula" else f"_{body}")
                     scratch.add_series_point(name, deg, move, "deg", "m")
-                logger.info("part 1 correction at %.0f deg: %d Newton iterations", deg, its)
+                logger.info(
+                    "part 1 correction at %.0f deg: %d + %d Newton iterations (multipliers)",
+                    deg,
+                    its,
+                    updates,
+                )
                 outputs(part1.transfer.angles[k])
     finally:
         outputs.close()

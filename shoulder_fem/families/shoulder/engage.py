@@ -30,13 +30,30 @@ from shoulder_fem.engine.rigid_system.control import MeasureGradient
 from shoulder_fem.engine.solver import ConvergenceError
 from shoulder_fem.families.shoulder.newton import solve_with_fallback
 
-__all__ = ["ENGAGE_FORCE", "ENGAGE_TRAVEL", "TRAVEL_SCALE", "angle_now", "engage", "joint_force"]
+__all__ = [
+    "ENGAGE_FORCE",
+    "ENGAGE_LIMIT",
+    "ENGAGE_STOP",
+    "ENGAGE_TRAVEL",
+    "TRAVEL_SCALE",
+    "angle_now",
+    "engage",
+    "joint_force",
+]
 
 logger = logging.getLogger(__name__)
 
 #: The glenohumeral normal force (N) that ends the engagement (the flat facets' corners carry
 #: about 1 N at rest at ``coarse``).
 ENGAGE_FORCE = 1.0
+#: The engagement ends once the twist reaches this fraction of the first angle the stepping
+#: lands on, and a solve past :data:`ENGAGE_LIMIT` of it is taken back with half the travel.
+#: A quarter was too early with the incompressible cartilage: at ``coarse`` with a 3 deg first
+#: output it handed over at 0.79 deg with 0.71 N on the joint, and the coupled angle step from
+#: there failed in both line searches (cut back once; measured).
+ENGAGE_STOP = 0.5
+#: See :data:`ENGAGE_STOP`.
+ENGAGE_LIMIT = 0.75
 #: The engagement's first increment of the plate's travel (m).
 ENGAGE_TRAVEL = 2e-5
 #: Residual of the travel equation per metre of travel error (N/m): with ``snes_atol`` = 1e-3
@@ -62,10 +79,10 @@ def engage(stepper, first: float) -> str | None:
             ``start``); its ``theta``, ``tangent`` and ``log`` (``steps``,
             ``engaging_steps``, ``engaged_angle``) are updated.
         first: The first angle the stepping must land on (rad, an output or the final
-            angle). The engagement also ends from a quarter of it on, and a solve that passes
-            half of it is taken back with half the travel: the angle steps always have the
-            way to it (``--set final_angle=1deg`` would otherwise have been engaged past it,
-            to 1.58 deg at ``coarse``).
+            angle). The engagement also ends from :data:`ENGAGE_STOP` (half) of it on, and a
+            solve that passes :data:`ENGAGE_LIMIT` of it is taken back with half the travel: the
+            angle steps always have the way to it (``--set final_angle=1deg`` would otherwise
+            have been engaged past it, to 1.58 deg at ``coarse``).
 
     Returns:
         None, or why it stopped (more than 2 x ``max_cutbacks`` failed solves; the state is the
@@ -85,7 +102,7 @@ def engage(stepper, first: float) -> str | None:
     control = system.set_control(stepper.actuator.name, twist.direction, travel, TRAVEL_SCALE)
     control.origin = twist.origin  # the travel is counted from the unloaded plate
     delta, fails = ENGAGE_TRAVEL, 0
-    while joint_force(stepper.contact) < ENGAGE_FORCE and angle_now(stepper) < 0.25 * first:
+    while joint_force(stepper.contact) < ENGAGE_FORCE and angle_now(stepper) < ENGAGE_STOP * first:
         snap = system.snapshot()
         control.target = stepper.travel() + delta
         name = f"{stepper.label} engaging, travel {control.target * 1e3:.3f} mm"
@@ -103,7 +120,7 @@ def engage(stepper, first: float) -> str | None:
                 )
             delta *= 0.5
             continue
-        if angle_now(stepper) > 0.5 * first:  # too far: taken back, not a failure
+        if angle_now(stepper) > ENGAGE_LIMIT * first:  # too far: taken back, not a failure
             system.restore(snap)
             log.newton_iterations += its
             delta *= 0.5

@@ -233,18 +233,21 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
 def soft_tissue_laws(params: ShoulderParameters) -> tuple:
     """(cartilage law, muscle law) of ``soft_tissue_formulation``, nearly incompressible.
 
-    ``incompressible`` (Table I): kappa = ``soft_tissue_bulk_ratio`` x the law's shear modulus
-    (the volumetric part goes to :class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`);
-    ``compressible`` (the earlier model): the cartilage's nu = 0.4 and the muscle's 0.49.
+    An incompressible body's law (Table I) has kappa = ``soft_tissue_bulk_ratio`` x its shear
+    modulus (the volumetric part goes to
+    :class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`); a compressible one is the
+    earlier model's: the cartilage's nu = 0.4, the muscle's 0.49. ``incompressible`` makes both
+    incompressible, ``incompressible-cartilage`` the cartilages only, ``compressible`` neither.
     """
     cart, musc = materials.NeoHookean.cartilage(), materials.VerondaWestmann.muscle()
-    if params.soft_tissue_formulation == "compressible":
-        return cart, musc
     ratio = params.soft_tissue_bulk_ratio
-    return (
-        materials.NeoHookean(cart.c10, ratio * cart.small_strain_moduli()[0]),
-        materials.VerondaWestmann(musc.alpha, musc.beta, ratio * musc.small_strain_moduli()[0]),
-    )
+    if params.incompressible_cartilage:
+        cart = materials.NeoHookean(cart.c10, ratio * cart.small_strain_moduli()[0])
+    if params.incompressible_muscles:
+        musc = materials.VerondaWestmann(
+            musc.alpha, musc.beta, ratio * musc.small_strain_moduli()[0]
+        )
+    return cart, musc
 
 
 def soft_tissue_residual(
@@ -253,37 +256,42 @@ def soft_tissue_residual(
     """Internal virtual power of the cartilages and the muscles (finite strain).
 
     Returns:
-        The form and, with ``soft_tissue_formulation = incompressible``, its mean-dilatation
-        terms (P2/P0: their residual is in the form; the solver adds their tangent), else
-        ``None`` (pure P2 displacement).
+        The form and, when a soft body is incompressible (``soft_tissue_formulation``), the
+        mean-dilatation terms of those bodies (P2/P0: their residual is in the form; the solver
+        adds their tangent), else ``None`` (pure P2 displacement).
     """
     cart, musc = soft_tissue_laws(params)
-    bodies = [(S.HUMERAL_CARTILAGE, cart), (S.GLENOID_CARTILAGE, cart)]
-    bodies += [(m, musc) for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS)]
-    if params.soft_tissue_formulation == "compressible":
-        return sum(vp.internal_power_finite(law, u, w, dx(b.id)) for b, law in bodies), None
+    cartilages = [(S.HUMERAL_CARTILAGE, cart), (S.GLENOID_CARTILAGE, cart)]
+    muscles = [(m, musc) for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS)]
+    mixed = (cartilages if params.incompressible_cartilage else []) + (
+        muscles if params.incompressible_muscles else []
+    )
+    plain = [b for b in cartilages + muscles if b not in mixed]
+    F = sum(vp.internal_power_finite(law, u, w, dx(b.id)) for b, law in plain)
+    if not mixed:
+        return F, None
     volumetric = MeanDilatation(
         u,
         cell_tags,
-        {b.id: law.bulk_modulus for b, law in bodies},
+        {b.id: law.bulk_modulus for b, law in mixed},
         dx,
         form_compiler_params=params.quadrature(),
         pressure=params.soft_tissue_pressure,
     )
-    F = sum(vp.internal_power_finite(materials.Isochoric(law), u, w, dx(b.id)) for b, law in bodies)
+    F += sum(vp.internal_power_finite(materials.Isochoric(law), u, w, dx(b.id)) for b, law in mixed)
     return F + volumetric.residual(w), volumetric
 
 
 def muscle_forms(u, w, dx, params: ShoulderParameters, volumetric=None) -> dict:
     """Each muscle's internal virtual power, compiled, by muscle name.
 
-    With ``volumetric`` (:func:`soft_tissue_residual`'s), the muscle's mean-dilatation part is
-    in it: call ``volumetric.update()`` before assembling.
+    With incompressible muscles the muscle's mean-dilatation part is in ``volumetric``
+    (:func:`soft_tissue_residual`'s): call ``volumetric.update()`` before assembling.
     """
     _, musc = soft_tissue_laws(params)
     out = {}
     for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS):
-        if volumetric is None:
+        if not params.incompressible_muscles:
             form = vp.internal_power_finite(musc, u, w, dx(m.id))
         else:
             form = vp.internal_power_finite(materials.Isochoric(musc), u, w, dx(m.id))

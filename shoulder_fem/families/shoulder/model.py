@@ -104,6 +104,16 @@ class ShoulderParameters:
         return self.muscle_contact in ("humeral-head", "bones")
 
     @property
+    def incompressible_cartilage(self) -> bool:
+        """Whether the cartilages are incompressible (``soft_tissue_formulation``, Table I)."""
+        return self.soft_tissue_formulation in ("incompressible", "incompressible-cartilage")
+
+    @property
+    def incompressible_muscles(self) -> bool:
+        """Whether the muscles are incompressible too (``soft_tissue_formulation``)."""
+        return self.soft_tissue_formulation == "incompressible"
+
+    @property
     def compliant_part1(self) -> bool:
         """Whether part 1 sees the bones' compliance (``part1_bones``, :mod:`.correction`)."""
         return self.part1_bones != "rigid"

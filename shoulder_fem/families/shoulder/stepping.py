@@ -103,6 +103,7 @@ class StepLog:
     history: list = field(default_factory=list)
     engaging_steps: int = 0  # the converged solves of :func:`.engage.engage` (among steps)
     engaged_angle: float = 0.0  # where it handed over to the angle control (rad)
+    volume_iterations: int = 0  # of the multiplier updates (.volume.augment), among the above
 
 
 # ---- the angle-controlled stepper ------------------------------------------------------------
@@ -139,7 +140,7 @@ class AngleStepper:
         self.max_step = params.max_angle_step
         self.max_cut = int(params.max_cutbacks)
         #: kappa/mu of nearly incompressible soft tissue (the seating's continuation), or None.
-        incompressible = params.soft_tissue_formulation == "incompressible"
+        incompressible = params.soft_tissue_formulation != "compressible"
         self.bulk_ratio = params.soft_tissue_bulk_ratio if incompressible else None
         #: The largest |ln θ| of the incompressible tissue at a converged step (:func:`augment`).
         self.volume_tolerance = params.soft_tissue_volume_tolerance if incompressible else 0.0
@@ -241,7 +242,9 @@ class AngleStepper:
         try:
             its = solve_with_fallback(system, name, snap, predict, self.log)
             # the step's length follows its own solve, not the multipliers' (1-2 each)
-            self.log.newton_iterations += augment(system, name, self.volume_tolerance)
+            updates = augment(system, name, self.volume_tolerance)
+            self.log.newton_iterations += updates
+            self.log.volume_iterations += updates
         except ConvergenceError as err:
             system.restore(snap)
             if multipliers is not None:
@@ -570,6 +573,7 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("engaging_steps", log.engaging_steps, "1")
     recorder.set_probe("engaged_angle_deg", math.degrees(log.engaged_angle), "deg")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
+    recorder.set_probe("volume_update_iterations", log.volume_iterations, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
     recorder.set_probe("krylov_iterations", job.system.stats.krylov_iterations, "1")
     recorder.set_probe("shortened_newton_steps", job.system.stats.shortened_steps, "1")

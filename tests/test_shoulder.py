@@ -1264,11 +1264,11 @@ def test_nearly_incompressible_tissue_is_seated_by_continuation(tmp_path_factory
         monkeypatch.setattr(seating, "SEATING_BULK_RATIO", 1e30 if direct else 10.0)
         scene = load_scene("shoulder-internal-rotation").with_overrides(
             [
+                *FLAT,  # a seated joint (its compressible cartilage overridden next)
                 "soft_tissue_formulation=incompressible",
                 f"soft_tissue_bulk_ratio={ratio:g}",
                 "soft_tissue_volume_tolerance=0",  # a plain penalty: the seating alone
                 "final_angle=0.5deg",
-                *FLAT,  # a seated joint
             ]
         )
         return api.run(scene, "decoupled", "coarse", base / name, comm=comm)

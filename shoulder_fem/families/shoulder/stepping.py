@@ -140,7 +140,7 @@ class AngleStepper:
         self.max_step = params.max_angle_step
         self.max_cut = int(params.max_cutbacks)
         #: kappa/mu of nearly incompressible soft tissue (the seating's continuation), or None.
-        incompressible = params.soft_tissue_formulation != "compressible"
+        incompressible = params.incompressible_cartilage  # in both incompressible choices
         self.bulk_ratio = params.soft_tissue_bulk_ratio if incompressible else None
         #: The largest |ln θ| of the incompressible tissue at a converged step (:func:`augment`).
         self.volume_tolerance = params.soft_tissue_volume_tolerance if incompressible else 0.0

@@ -58,4 +58,7 @@ def test_the_engagement_changes_the_path_not_the_state(comm_tmp, monkeypatch):
     for key in ("contact_force", "subscapularis_force", "infraspinatus_force", "max_pressure"):
         a = np.asarray(engaged.series[key]["y"])
         b = np.asarray(direct.series[key]["y"])
-        assert np.allclose(a, b, rtol=1e-6, atol=1e-6 * np.abs(b).max()), (key, a, b)
+        # the peak pressure is one node's: 2.1e-6 apart at 3 deg, measured (the retries of
+        # the angle steps from the step's start, since 2026-11-29); the resultants 1e-6
+        rtol = 1e-5 if key == "max_pressure" else 1e-6
+        assert np.allclose(a, b, rtol=rtol, atol=rtol * np.abs(b).max()), (key, a, b)

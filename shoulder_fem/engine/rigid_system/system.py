@@ -106,6 +106,7 @@ def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, 
         # with INFOG(1) = -3): the next solve factorizes afresh.
         snes.getKSP().getPC().reset()
         why = petsc_error or failure_reason(reason, snes.getKSP())
+        logger.debug("%s %s: failed after %d Newton iterations %s", prefix, step, its, history)
         stagnation = snes.getAttr("stagnation_test")
         if not petsc_error and stagnation is not None:
             why += stagnation.describe()

@@ -61,8 +61,8 @@ def record_muscle_bone(recorder: Recorder, contact: Contact, x: float) -> None:
         pen = float(max(r["max_penetration"] for r in by_tag.values()))
         recorder.add_series_point(f"{pair}_contact_force", x, _norm(force), "deg", "N")
         recorder.add_series_point(f"{pair}_penetration", x, pen, "deg", "m")
-        for muscle, face in zip(S.MUSCLES, faces, strict=True):
-            f = by_tag[face.id]["force"] if face.id in by_tag else np.zeros(3)
+        for muscle, tags in zip(S.MUSCLES, faces, strict=True):
+            f = sum((by_tag[t.id]["force"] for t in tags if t.id in by_tag), np.zeros(3))
             per_muscle[muscle] = per_muscle.get(muscle, np.zeros(3)) + f
             recorder.add_series_point(f"{muscle}_{bone}_contact_force", x, _norm(f), "deg", "N")
         total, deepest = total + force, max(deepest, pen)

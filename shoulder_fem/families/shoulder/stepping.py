@@ -240,7 +240,8 @@ class AngleStepper:
         multipliers = None if vol is None else vol.multiplier.copy()
         name = f"{self.label} {math.degrees(target):.2f} deg"
         try:
-            its = solve_with_fallback(system, name, snap, predict, self.log)
+            predicted = predict if self.tangent is not None else None
+            its = solve_with_fallback(system, name, snap, predicted, self.log)
             # the step's length follows its own solve, not the multipliers' (1-2 each)
             updates = augment(system, name, self.volume_tolerance)
             self.log.newton_iterations += updates

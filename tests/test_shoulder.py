@@ -1131,7 +1131,9 @@ def test_the_cuff_slides_on_the_scapula(study):
     inside = _scapula_overlap(study["base"] / "coupled" / "fields" / "coupled.h5")
     assert max(inside.values()) <= pen.max() + 5e-5, (inside, pen)
     _, sub = _series(study["results"]["coupled"], "subscapularis_scapula_contact_force")
-    assert sub[-1] > 0.5, sub  # the subscapularis on the glenoid's neck at 60 deg
+    # the subscapularis on the glenoid's neck at 60 deg (measured 1.30 N at coarse; 0 while no
+    # pair looked at its faces over the head)
+    assert sub[-1] > 0.5, sub
 
 
 def _part1_system(options: dict):

@@ -124,7 +124,7 @@ def solve_with_fallback(
         "snes_divergence_tolerance": -1.0,
         "snes_linesearch_maxstep": FALLBACK_MAX_LAMBDA,
     }
-    system.set_options(fallback | {"snes_max_it": FALLBACK_MAX_IT})
+    system.set_options(fallback)
     starts = [(None, "")] + ([(predict, ", from the prediction")] if predict is not None else [])
     try:
         for k, (start, where) in enumerate(starts):

@@ -7,6 +7,7 @@ steps (:mod:`~.stepping`).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 
 from shoulder_fem.engine.rigid_system import RigidSystem
@@ -17,6 +18,7 @@ __all__ = [
     "FALLBACK_LINESEARCH",
     "FALLBACK_MAX_IT",
     "OUTPUT_ATOL",
+    "RetryOrder",
     "SNES_OPTIONS",
     "output_tolerance",
     "solve_with_fallback",
@@ -78,6 +80,22 @@ def output_tolerance(system: RigidSystem, tolerance: float = OUTPUT_ATOL):
         system.set_options({"snes_atol": atol})
 
 
+@dataclasses.dataclass
+class RetryOrder:
+    """Where an angle step's ``l2`` retry starts first: the start that converged last time.
+
+    Measured 2026-11-29 (the default scene, 0-60 deg, both starts tried, the step's start
+    first): every retry of the coupled runs converged from the step's start (2 at coarse, 2 at
+    medium, 1 at paper; from the prediction the coupled retries at 8.13 and 42.50 deg at coarse
+    fail in 20 iterations), while part 1's converged from the prediction after 20 iterations in
+    vain from the step's start in 8 of its 10 retried steps (1 of 2 at coarse, 2 of 3 at medium,
+    5 of 5 at paper). Which start suits a run is a property of its tangent, so each stepper
+    keeps the order that last worked.
+    """
+
+    prediction_first: bool = False
+
+
 def solve_with_fallback(
     system: RigidSystem,
     step: str,
@@ -85,20 +103,22 @@ def solve_with_fallback(
     predict=None,
     log=None,
     divergence_tolerance: float = DIVERGENCE_TOLERANCE,
+    order: RetryOrder | None = None,
 ) -> int:
     """Solve; if Newton ran out of iterations, solve again with the ``FALLBACK_LINESEARCH``.
 
-    The retry starts from ``snap`` (a :meth:`RigidSystem.snapshot`) as it is; if that fails
-    too and ``predict`` is given, from ``snap`` re-predicted by ``predict()``. Either start can
-    be the one that converges. Measured at coarse, 0-60 deg: the coupled run's retries from the
-    angle step's tangent prediction failed at 8.13 and 42.50 deg (both steps cut back); from
-    the step's start its retries (8.13 and 27.71 deg) converge in 10 and 7 iterations and no
-    step is cut back. Part 1's retry at 8.13 deg fails from the start and converges from the
-    prediction (``FIRST_RETRY_MAX_IT``). The ``l2`` line search does not extrapolate past the
-    full Newton step, the one the trial-state guard checked (``snes_linesearch_maxstep`` = 1
-    bounds its step length; measured, coupled at coarse, the retries from the prediction: with
-    it the retry at 27.71 deg converged, without it that retry ended in ``DIVERGED_FNORM_NAN``
-    after 9 iterations and the step was cut back).
+    The retry starts from ``snap`` (a :meth:`RigidSystem.snapshot`) as it is; if that fails too
+    and ``predict`` is given, from ``snap`` re-predicted by ``predict()``. Either start can be
+    the one that converges: with ``order`` (a :class:`RetryOrder`), the one that converged last
+    time is tried first, and ``order`` is updated. Measured at coarse, 0-60 deg: the coupled
+    run's retries from the angle step's tangent prediction failed at 8.13 and 42.50 deg (both
+    steps cut back); from the step's start its retries (8.13 and 27.71 deg) converge in 10 and 7
+    iterations and no step is cut back. Part 1's retry at 8.13 deg fails from the start and
+    converges from the prediction (``FIRST_RETRY_MAX_IT``). The ``l2`` line search does not
+    extrapolate past the full Newton step, the one the trial-state guard checked
+    (``snes_linesearch_maxstep`` = 1 bounds its step length; measured, coupled at coarse, the
+    retries from the prediction: with it the retry at 27.71 deg converged, without it that retry
+    ended in ``DIVERGED_FNORM_NAN`` after 9 iterations and the step was cut back).
 
     ``log`` (a :class:`~.stepping.StepLog`, or None) counts the retries and the failed solves'
     iterations. ``divergence_tolerance``: the solver's own, set again after the retries (-1:
@@ -125,7 +145,11 @@ def solve_with_fallback(
         "snes_linesearch_maxstep": FALLBACK_MAX_LAMBDA,
     }
     system.set_options(fallback)
-    starts = [(None, "")] + ([(predict, ", from the prediction")] if predict is not None else [])
+    starts = [(None, "")]
+    if predict is not None:
+        starts = [(None, ", from the step's start"), (predict, ", from the prediction")]
+        if order is not None and order.prediction_first:
+            starts.reverse()
     try:
         for k, (start, where) in enumerate(starts):
             last = k == len(starts) - 1
@@ -137,9 +161,15 @@ def solve_with_fallback(
             if start is not None:
                 start()
             try:
-                return system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search{where})")
+                its = system.solve(step=f"{step} ({FALLBACK_LINESEARCH} line search{where})")
             except ConvergenceError as err:
                 failed = err
+                if log is not None and not last:
+                    log.first_retries_failed += 1
+            else:
+                if order is not None and predict is not None:
+                    order.prediction_first = start is not None
+                return its
         raise failed
     finally:
         system.set_options(

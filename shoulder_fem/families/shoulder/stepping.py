@@ -41,6 +41,7 @@ from shoulder_fem.families.shoulder.newton import (
     FALLBACK_MAX_IT,
     OUTPUT_ATOL,
     SNES_OPTIONS,
+    RetryOrder,
     output_tolerance,
     solve_with_fallback,
 )
@@ -99,6 +100,7 @@ class StepLog:
     steps: int = 0
     failed_steps: int = 0
     fallbacks: int = 0
+    first_retries_failed: int = 0  # retries whose first start failed (:class:`.RetryOrder`)
     newton_iterations: int = 0
     history: list = field(default_factory=list)
     engaging_steps: int = 0  # the converged solves of :func:`.engage.engage` (among steps)
@@ -145,6 +147,8 @@ class AngleStepper:
         #: The largest |ln θ| of the incompressible tissue at a converged step (:func:`augment`).
         self.volume_tolerance = params.soft_tissue_volume_tolerance if incompressible else 0.0
         self.log = StepLog()
+        #: Where the next ``l2`` retry starts first (:class:`.newton.RetryOrder`).
+        self.retry_order = RetryOrder()
         self.theta = 0.0
         self.tangent: PETSc.Vec | None = None
         #: The tangent of the converged state before, and the step from there (rad).
@@ -228,7 +232,7 @@ class AngleStepper:
         snap = system.snapshot()
         step = target - self.theta
 
-        def predict(snap=snap, step=step):
+        def predict(step=step):
             if self.tangent is not None:
                 direction = self.predictor(step)
                 system.predict(direction, step)
@@ -241,7 +245,9 @@ class AngleStepper:
         name = f"{self.label} {math.degrees(target):.2f} deg"
         try:
             predicted = predict if self.tangent is not None else None
-            its = solve_with_fallback(system, name, snap, predicted, self.log)
+            its = solve_with_fallback(
+                system, name, snap, predicted, self.log, order=self.retry_order
+            )
             # the step's length follows its own solve, not the multipliers' (1-2 each)
             updates = augment(system, name, self.volume_tolerance)
             self.log.newton_iterations += updates
@@ -574,6 +580,7 @@ def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     recorder.set_probe("engaging_steps", log.engaging_steps, "1")
     recorder.set_probe("engaged_angle_deg", math.degrees(log.engaged_angle), "deg")
     recorder.set_probe("linesearch_fallbacks", log.fallbacks, "1")
+    recorder.set_probe("first_retries_failed", log.first_retries_failed, "1")
     recorder.set_probe("volume_update_iterations", log.volume_iterations, "1")
     recorder.set_probe("newton_iterations", log.newton_iterations, "1")
     recorder.set_probe("krylov_iterations", job.system.stats.krylov_iterations, "1")

@@ -86,11 +86,12 @@ class RetryOrder:
 
     Measured 2026-11-29 (the default scene, 0-60 deg, both starts tried, the step's start
     first): every retry of the coupled runs converged from the step's start (2 at coarse, 2 at
-    medium, 1 at paper; from the prediction the coupled retries at 8.13 and 42.50 deg at coarse
-    fail in 20 iterations), while part 1's converged from the prediction after 20 iterations in
-    vain from the step's start in 8 of its 10 retried steps (1 of 2 at coarse, 2 of 3 at medium,
-    5 of 5 at paper). Which start suits a run is a property of its tangent, so each stepper
-    keeps the order that last worked.
+    medium, 1 at paper; at coarse in 10 and 7 iterations; from the prediction the coupled
+    retries at 8.13 and 42.50 deg at coarse fail in 20 iterations, so both steps were cut back
+    before), while part 1's converged from the prediction after 20 iterations in vain from the
+    step's start in 8 of its 10 retried steps (1 of 2 at coarse, 2 of 3 at medium, 5 of 5 at
+    paper). Which start suits a run is a property of its tangent, so each stepper keeps the
+    order that last worked.
     """
 
     prediction_first: bool = False
@@ -107,18 +108,13 @@ def solve_with_fallback(
 ) -> int:
     """Solve; if Newton ran out of iterations, solve again with the ``FALLBACK_LINESEARCH``.
 
-    The retry starts from ``snap`` (a :meth:`RigidSystem.snapshot`) as it is; if that fails too
-    and ``predict`` is given, from ``snap`` re-predicted by ``predict()``. Either start can be
-    the one that converges: with ``order`` (a :class:`RetryOrder`), the one that converged last
-    time is tried first, and ``order`` is updated. Measured at coarse, 0-60 deg: the coupled
-    run's retries from the angle step's tangent prediction failed at 8.13 and 42.50 deg (both
-    steps cut back); from the step's start its retries (8.13 and 27.71 deg) converge in 10 and 7
-    iterations and no step is cut back. Part 1's retry at 8.13 deg fails from the start and
-    converges from the prediction (``FIRST_RETRY_MAX_IT``). The ``l2`` line search does not
-    extrapolate past the full Newton step, the one the trial-state guard checked
-    (``snes_linesearch_maxstep`` = 1 bounds its step length; measured, coupled at coarse, the
-    retries from the prediction: with it the retry at 27.71 deg converged, without it that retry
-    ended in ``DIVERGED_FNORM_NAN`` after 9 iterations and the step was cut back).
+    The retry starts from ``snap`` (a :meth:`RigidSystem.snapshot`) as it is and, if that fails
+    and ``predict`` is given, from ``snap`` re-predicted by ``predict()``; with ``order`` (a
+    :class:`RetryOrder`, whose docstring has the measurements) the start that converged last
+    is tried first, and ``order`` is updated. The ``l2`` line search does not extrapolate past
+    the full Newton step, the one the trial-state guard checked (``snes_linesearch_maxstep`` =
+    1; measured, coupled at coarse: without it a retry at 27.71 deg ended in
+    ``DIVERGED_FNORM_NAN`` after 9 iterations and the step was cut back).
 
     ``log`` (a :class:`~.stepping.StepLog`, or None) counts the retries and the failed solves'
     iterations. ``divergence_tolerance``: the solver's own, set again after the retries (-1:

@@ -58,7 +58,8 @@ def test_the_engagement_changes_the_path_not_the_state(comm_tmp, monkeypatch):
     for key in ("contact_force", "subscapularis_force", "infraspinatus_force", "max_pressure"):
         a = np.asarray(engaged.series[key]["y"])
         b = np.asarray(direct.series[key]["y"])
-        # the peak pressure is one node's: 2.1e-6 apart at 3 deg, measured (the retries of
-        # the angle steps from the step's start, since 2026-11-29); the resultants 1e-6
+        # the peak pressure is one node's: 2.0-2.1e-6 (of its largest value) apart at 3 deg,
+        # measured twice on 2026-11-29 (1e-6 before that day's contact and retry changes; which
+        # of them moved it was not isolated); the resultants agree to 6e-7, bound 1e-6
         rtol = 1e-5 if key == "max_pressure" else 1e-6
         assert np.allclose(a, b, rtol=rtol, atol=rtol * np.abs(b).max()), (key, a, b)

@@ -356,19 +356,30 @@ class Isochoric(Hyperelastic):
     For a mixed or mean-dilatation formulation (:mod:`shoulder_fem.engine.mean_dilatation`),
     which carries the volumetric energy kappa/2 (ln theta)^2 on a pressure space of its own.
 
+    With ``pointwise_bulk`` kappa_s > 0 it adds kappa_s/2 (ln J)^2 on the pointwise J: a
+    stabilisation that bounds the volume change at each point, which the projected constraint
+    leaves free inside a pressure patch. It and its derivative vanish at J = 1, so the
+    incompressible solution is unchanged by it; a small kappa_s/mu adds little stiffness
+    (P2 locks only for kappa/mu in the hundreds).
+
     Attributes:
         law: A :class:`NeoHookean` or :class:`VerondaWestmann` law.
+        pointwise_bulk: kappa_s in Pa (0: the isochoric energy alone).
     """
 
     law: NeoHookean | VerondaWestmann
+    pointwise_bulk: Scalar = 0.0
 
     def strain_energy(self, C: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
-        """The law's isochoric energy, J/m^3."""
-        return self.law.isochoric_energy(C)
+        """The law's isochoric energy (and the pointwise stabilisation), J/m^3."""
+        if not self.pointwise_bulk:
+            return self.law.isochoric_energy(C)
+        _, _, J = isochoric_invariants(C)
+        return self.law.isochoric_energy(C) + _volumetric_energy(self.pointwise_bulk, J)
 
     def small_strain_moduli(self) -> tuple[Scalar, Scalar]:
-        """(the law's shear modulus, 0), Pa."""
-        return self.law.small_strain_moduli()[0], 0.0
+        """(the law's shear modulus, ``pointwise_bulk``), Pa."""
+        return self.law.small_strain_moduli()[0], self.pointwise_bulk
 
 
 def von_mises(stress: ufl.core.expr.Expr) -> ufl.core.expr.Expr:

@@ -28,8 +28,11 @@ from shoulder_fem.forms import Isochoric, NeoHookean, internal_power_finite
 TAG = 7
 
 
-def _body(comm, corner, n, c10, ratio, mixed=True, pressure="P0"):
-    """P2 displacement on a box, its cells tagged; (u, w, dx, law, MeanDilatation or None)."""
+def _body(comm, corner, n, c10, ratio, mixed=True, pressure="P0", pointwise=0.0):
+    """P2 displacement on a box, its cells tagged; (u, w, dx, law, MeanDilatation or None).
+
+    ``pointwise``: the stabilisation's kappa_s/mu (:class:`Isochoric`'s ``pointwise_bulk``).
+    """
     mesh = dolfinx.mesh.create_box(comm, [[0, 0, 0], corner], n, dolfinx.mesh.CellType.tetrahedron)
     V = dolfinx.fem.VectorFunctionSpace(mesh, ("CG", 2))
     imap = mesh.topology.index_map(3)
@@ -41,7 +44,8 @@ def _body(comm, corner, n, c10, ratio, mixed=True, pressure="P0"):
     if not mixed:
         return u, w, dx, law, None, internal_power_finite(law, u, w, dx(TAG))
     md = MeanDilatation(u, ct, {TAG: law.bulk_modulus}, dx, pressure=pressure)
-    F = internal_power_finite(Isochoric(law), u, w, dx(TAG)) + md.residual(w)
+    iso = Isochoric(law, pointwise * 2 * c10)
+    F = internal_power_finite(iso, u, w, dx(TAG)) + md.residual(w)
     return u, w, dx, law, md, F
 
 
@@ -57,10 +61,10 @@ def _options(law) -> dict:
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("pressure", ["P0", "P1"])
-def test_tangent_is_the_derivative_of_the_residual(pressure):
+@pytest.mark.parametrize("pressure, pointwise", [("P0", 0.0), ("P1", 0.0), ("P1", 5.0)])
+def test_tangent_is_the_derivative_of_the_residual(pressure, pointwise):
     comm = MPI.COMM_WORLD
-    u, _, _, _, md, F = _body(comm, [1, 1, 1], [1, 1, 1], 1.0, 10.0, pressure=pressure)
+    u, _, _, _, md, F = _body(comm, [1, 1, 1], [1, 1, 1], 1.0, 10.0, True, pressure, pointwise)
     F_form = dolfinx.fem.form(F)
     J_form = dolfinx.fem.form(ufl.derivative(F, u))
     rng = np.random.default_rng(3)
@@ -97,7 +101,7 @@ def test_tangent_is_the_derivative_of_the_residual(pressure):
 
 
 def _uniaxial(
-    ratio: float, pressure: str, stretch: float = 1.3, tolerance: float = 0.0
+    ratio: float, pressure: str, stretch: float = 1.3, tolerance: float = 0.0, pointwise=0.0
 ) -> tuple[float, float, float]:
     """(nominal stress / hand value - 1, relative volume change, lateral stretch error).
 
@@ -106,7 +110,7 @@ def _uniaxial(
     """
     comm = MPI.COMM_WORLD
     c10 = 1.0e6
-    u, _, dx, law, md, F = _body(comm, [1, 1, 1], [2, 2, 2], c10, ratio, pressure=pressure)
+    u, _, dx, law, md, F = _body(comm, [1, 1, 1], [2, 2, 2], c10, ratio, True, pressure, pointwise)
     V = u.function_space
     zero = PETSc.ScalarType(0)
     bcs = [_component_bc(V, i, lambda x, i=i: np.isclose(x[i], 0.0), zero)[0] for i in range(3)]
@@ -164,10 +168,20 @@ def test_an_augmented_lagrangian_gives_the_incompressible_answer_with_a_soft_pen
         assert abs(stress) < 1e-8 and abs(volume) < 1e-9 and lateral < 1e-8, pressure
 
 
-def _tip_deflection(ratio: float, mixed: bool, pressure: str = "P0") -> float:
+@pytest.mark.mpi
+def test_the_pointwise_stabilisation_leaves_the_incompressible_answer():
+    # kappa_s/2 (ln J)^2 at every point (kappa_s = 5 mu) vanishes with its derivative at J = 1:
+    # with the multipliers the homogeneous stretch is the hand calculation as without it
+    # (measured: stress -6.7e-12, volume 4.5e-12, lateral stretch 2.0e-12)
+    stress, volume, lateral = _uniaxial(10.0, "P1", tolerance=1e-11, pointwise=5.0)
+    assert abs(stress) < 1e-8 and abs(volume) < 1e-9 and lateral < 1e-8
+
+
+def _tip_deflection(ratio: float, mixed: bool, pressure: str = "P0", pointwise=0.0) -> float:
     """Mean vertical tip displacement (m) of a 1 x 0.2 x 0.2 cantilever under a small shear."""
     comm = MPI.COMM_WORLD
-    u, w, _, law, md, F = _body(comm, [1.0, 0.2, 0.2], [10, 2, 2], 0.5, ratio, mixed, pressure)
+    box = [1.0, 0.2, 0.2], [10, 2, 2]
+    u, w, _, law, md, F = _body(comm, *box, 0.5, ratio, mixed, pressure, pointwise)
     V = u.function_space
     mesh = V.mesh
     tip = dolfinx.mesh.locate_entities_boundary(mesh, 2, lambda x: np.isclose(x[0], 1.0))
@@ -200,6 +214,11 @@ def test_a_nearly_incompressible_cantilever_does_not_lock():
         # measured: P0 +0.5 %, -0.0 %; P1 -5.0 %, -5.7 % (two cells through the depth)
         assert abs(soft / timoshenko - 1) < tol and abs(hard / timoshenko - 1) < tol
         assert abs(hard / soft - 1) < 0.01  # measured: -0.5 % (P0), -0.7 % (P1)
+    # the stabilisation (kappa_s = 5 mu) stiffens the bent beam a little, two cells through
+    # its depth (measured: -1.6 % at kappa/mu = 1e3, P1; pure P2 at kappa/mu = 50: -8 %)
+    stabilised = -_tip_deflection(1e3, True, "P1", pointwise=5.0)
+    assert abs(stabilised / timoshenko - 1) < 0.08  # measured: -7.2 %
+    assert 0.97 < stabilised / -_tip_deflection(1e3, True, "P1") < 1.0  # measured: 0.984
     # the reference of both: Timoshenko's beam (hand calculation above)
     locked = -_tip_deflection(1e5, False)
     assert locked / timoshenko < 0.92  # measured: 0.893 (pure P2, the same mesh)

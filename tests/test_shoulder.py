@@ -228,10 +228,13 @@ def test_both_methods_reach_the_final_angle_with_every_output(study):
         x, y = _series(result, "humeral_angle")
         assert np.allclose(y[1:], x[1:], rtol=0, atol=1e-6), (method, y - x)
         assert abs(y[0]) < 0.5
-        # the soft tissues at equilibrium are far from the trial states' bounds (J > 0)
+        # the soft tissues at equilibrium are inside the trial states' bounds (J > 0); with the
+        # muscles incompressible the smallest J at their points falls to 0.011-0.013 at 60 deg at
+        # coarse (25 mm muscles; 0.17 at medium), at one point of a subscapularis cell next to
+        # its insertion footprint, held by the pointwise stabilisation (0.003 and a stall near
+        # 40 deg without it; README); with nu = 0.49 muscles it was 0.47
         _, jmin = _series(result, "soft_tissue_min_j")
-        # measured down to 0.47 at 60 deg (coarse); the guard's bound is J > 0
-        assert np.all(jmin > 0.3), (method, jmin)
+        assert np.all(jmin > 0.005) and np.all(np.diff(jmin[1:]) < 0), (method, jmin)
         # the subscapularis pulls harder as the humerus turns (0.4 -> 48 N measured over
         # 0-60 deg; 0.5 N is a floor, not a fit); the contact is loaded
         _, fsub = _series(result, "subscapularis_force")
@@ -323,7 +326,11 @@ def test_every_step_converges_in_a_few_newton_iterations(study):
     then retries first from the start that converged last (``newton.RetryOrder``): at most one
     retry per run fails from its first start (measured: coupled 0, part 1 1, its retry at 28.48
     deg then converging from the prediction in 9; at paper part 1 lost 20 iterations in each of
-    5 retries before). The coupled
+    5 retries before). With the muscles incompressible too (the default since 2026-11-29) the
+    multipliers' updates take about as many iterations as the steps (coupled 240 + 215 in 38
+    steps, 6.3; part 1 300 + 255 in 44, 6.8; none cut back) and the learnt order is right in
+    at least half the retries (coupled: 0 of 4 failed from the first start, part 1 2 of 6). The
+    coupled
     steps' bone rotations are
     finite (:mod:`shoulder_fem.engine.rigid_system.corotation`): with linear ones the coupled
     run took 310 iterations in 43 steps, two solves of 24 and 45 iterations among them, and at
@@ -337,25 +344,25 @@ def test_every_step_converges_in_a_few_newton_iterations(study):
         steps_own = p["newton_iterations"] - p["volume_update_iterations"]
         assert 0 < p["volume_update_iterations"] < steps_own, (method, p)
         assert steps_own <= 7.0 * p["steps"], (method, p["newton_iterations"])
-        assert p["first_retries_failed"] <= 1, (method, p["first_retries_failed"])
+        retries = p["linesearch_fallbacks"]
+        assert p["first_retries_failed"] <= (retries + 1) // 2, (method, retries, p)
 
 
-def test_the_cartilages_keep_their_volume(study):
-    """Table I: the cartilages are incompressible (``soft_tissue_formulation =
-    incompressible-cartilage``, the default). The augmented Lagrangian holds every cartilage
-    vertex's |ln theta| to ``soft_tissue_volume_tolerance`` (1e-4), so neither layer's volume
-    changes by more than that at any output, with either method (measured at coarse: at most
-    9.5e-7; the earlier cartilage, nu = 0.4, lost 0.35 % of the glenoid layer by 60 deg). The
-    muscles keep the earlier model's nu = 0.49 (their volume grows by 0.2-0.6 % to 60 deg)."""
+def test_the_soft_bodies_keep_their_volume(study):
+    """Table I: the cartilages and the muscles are incompressible (``soft_tissue_formulation =
+    incompressible``, the default since 2026-11-29). The augmented Lagrangian holds every
+    soft-tissue vertex's |ln theta| to ``soft_tissue_volume_tolerance`` (1e-4), so no soft
+    body's volume changes by more than that at any output, with either method (the earlier
+    cartilage, nu = 0.4, lost 0.35 % of the glenoid layer by 60 deg; the earlier muscles, nu =
+    0.49, grew by 0.2-0.6 %)."""
     scene = load_scene("shoulder-internal-rotation")
-    assert scene.values()["soft_tissue_formulation"] == "incompressible-cartilage"
+    assert scene.values()["soft_tissue_formulation"] == "incompressible"
     tolerance = scene.values()["soft_tissue_volume_tolerance"]
+    bodies = ("humeral_cartilage", "glenoid_cartilage", "subscapularis", "supraspinatus")
     for method, result in study["results"].items():
-        for body in ("humeral_cartilage", "glenoid_cartilage"):
+        for body in (*bodies, "infraspinatus"):
             _, change = _series(result, f"{body}_volume_change")
             assert np.abs(change).max() <= tolerance, (method, body, change)
-        _, change = _series(result, "subscapularis_volume_change")
-        assert change[-1] > 10 * tolerance, (method, change)  # compressible: not held
 
 
 def test_a_forced_large_step_is_shortened_inside_the_solve_not_cut_back(comm_tmp):

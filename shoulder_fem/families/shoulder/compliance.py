@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from shoulder_fem.engine.contact.geometry import closest_points_on_triangles
 from shoulder_fem.families.shoulder.geometry import gather_rows
-from shoulder_fem.families.shoulder.interactions import soft_tissue_laws
+from shoulder_fem.families.shoulder.interactions import mixed_law, soft_tissue_laws
 from shoulder_fem.forms import materials
 from shoulder_fem.forms.kinematics import deformation_gradient, right_cauchy_green
 from shoulder_fem.meshes import shoulder as S
@@ -163,8 +163,10 @@ class EnergyShare:
     @classmethod
     def of_model(cls, u: dolfinx.fem.Function, cell_tags, params) -> EnergyShare:
         """The share for the shoulder's cartilage law (``ShoulderParameters`` ``params``)."""
-        isochoric = params.incompressible_cartilage
-        return cls(u, cell_tags, soft_tissue_laws(params)[0], isochoric, params.quadrature())
+        law = soft_tissue_laws(params)[0]
+        if params.incompressible_cartilage:  # its pointwise energy; the volumetric one is 0
+            return cls(u, cell_tags, mixed_law(law, params), False, params.quadrature())
+        return cls(u, cell_tags, law, False, params.quadrature())
 
     def cartilage_energy(self) -> float:
         """The two cartilage layers' strain energy (J)."""

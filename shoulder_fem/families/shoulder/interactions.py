@@ -262,6 +262,16 @@ def soft_tissue_laws(params: ShoulderParameters) -> tuple:
     return cart, musc
 
 
+def mixed_law(law, params: ShoulderParameters) -> materials.Isochoric:
+    """The pointwise part of an incompressible body's law (its volume kept elsewhere).
+
+    Its isochoric energy and the stabilisation of ``soft_tissue_pointwise_bulk_ratio`` x its
+    shear modulus (:class:`~forms.materials.Isochoric`).
+    """
+    ratio = params.soft_tissue_pointwise_bulk_ratio
+    return materials.Isochoric(law, ratio * law.small_strain_moduli()[0])
+
+
 def soft_tissue_residual(
     u, w, dx, cell_tags, params: ShoulderParameters
 ) -> tuple[ufl.Form, MeanDilatation | None]:
@@ -290,7 +300,7 @@ def soft_tissue_residual(
         form_compiler_params=params.quadrature(),
         pressure=params.soft_tissue_pressure,
     )
-    F += sum(vp.internal_power_finite(materials.Isochoric(law), u, w, dx(b.id)) for b, law in mixed)
+    F += sum(vp.internal_power_finite(mixed_law(law, params), u, w, dx(b.id)) for b, law in mixed)
     return F + volumetric.residual(w), volumetric
 
 
@@ -306,7 +316,7 @@ def muscle_forms(u, w, dx, params: ShoulderParameters, volumetric=None) -> dict:
         if not params.incompressible_muscles:
             form = vp.internal_power_finite(musc, u, w, dx(m.id))
         else:
-            form = vp.internal_power_finite(materials.Isochoric(musc), u, w, dx(m.id))
+            form = vp.internal_power_finite(mixed_law(musc, params), u, w, dx(m.id))
             form += volumetric.residual(w, (m.id,))
         out[m.name] = dolfinx.fem.form(form, form_compiler_params=params.quadrature())
     return out

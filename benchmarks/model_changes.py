@@ -7,10 +7,11 @@ Both methods, 0-60 deg, on the scene and on variants that put back one earlier s
 at a time (issue 20, item 9):
 
 * ``whole``: the scene as it is (the paper's 4 vertical distal elements, the rotator cuff
-  sliding on the humeral head and the scapula, the incompressible cartilage, the glenohumeral
-  penalty 200 MPa/mm on the curved articular surfaces);
-* ``compressible``: the earlier cartilage, nu = 0.4, at 100 MPa/mm (the default before the
-  incompressible cartilage);
+  sliding on the humeral head and the scapula, the incompressible cartilage and muscles, the
+  glenohumeral penalty 200 MPa/mm on the curved articular surfaces);
+* ``compressible-muscles``: the earlier muscles, nu = 0.49 (the default before 2026-11-29);
+* ``compressible``: the earlier cartilage, nu = 0.4, and muscles, at 100 MPa/mm (the default
+  before the incompressible cartilage);
 * ``flat``: the articular surfaces as the mesh's flat facets at 60 MPa/mm, the compressible
   cartilage (the default before the curved surfaces: the facets' misfit set the penalty's
   overlap);
@@ -46,6 +47,7 @@ EARLIER_PENALTY = "contact_penalty=5MPa/mm"
 EARLIER_SUPPORTS = "humerus_horizontal_stiffness=5N/mm"
 VARIANTS = {
     "whole": [],
+    "compressible-muscles": ["soft_tissue_formulation=incompressible-cartilage"],
     "compressible": [COMPRESSIBLE, "contact_penalty=100MPa/mm"],
     "flat": [COMPRESSIBLE, FLAT, "contact_penalty=60MPa/mm"],
     "penalty": [FLAT, EARLIER_PENALTY],
@@ -110,7 +112,8 @@ PANELS = (
 def plot(data: dict, path: Path) -> None:
     """The coupled runs' series, one panel per quantity, one line per variant and level."""
     fig, axes = plt.subplots(2, 3, figsize=(14, 7.5), layout="constrained")
-    colours = dict(zip(VARIANTS, ("C0", "C7", "C6", "C1", "C4", "C5", "C2", "C3"), strict=True))
+    palette = ("C0", "C8", "C7", "C6", "C1", "C4", "C5", "C2", "C3")
+    colours = dict(zip(VARIANTS, palette, strict=True))
     styles = {"coarse": ":", "medium": "-", "paper": "--"}
     for level, cases in data["levels"].items():
         for case, runs in cases.items():
@@ -131,7 +134,7 @@ def plot(data: dict, path: Path) -> None:
     axes.flat[0].legend(fontsize=7)
     fig.suptitle(
         "coupled method; whole = the scene (paper's supports, cuff on the bones, incompressible "
-        "cartilage, curved surfaces, 200 MPa/mm); "
+        "cartilage and muscles, curved surfaces, 200 MPa/mm); "
         "each other line puts back one earlier simplification, earlier = all of them",
         fontsize=9,
     )

@@ -478,8 +478,11 @@ def test_compliant_decoupling_is_closer_to_coupled_at_every_angle(study, complia
         assert np.all(np.abs(new - c)[1:] <= 2e-3 * c[1:]), (name, c, new)
     c, new = _series(cpl, "max_pressure")[1], _series(res, "max_pressure")[1]
     old = _series(res, "uncorrected_max_pressure")[1]
-    loaded = c > 0  # the open unloaded joint (curved surfaces) has none in every method
-    assert np.all(new[~loaded] == 0) and np.all(old[~loaded] == 0), (c, new, old)
+    # the unloaded joint (curved surfaces) is open or barely touches in every method (measured
+    # with the incompressible muscles at 0 deg: 0.49 Pa, 1e-4 N in all, its differences
+    # within part 1's Newton tolerance); loaded from 10 deg (46 kPa)
+    loaded = c > 1e3
+    assert np.all(new[~loaded] < 1e3) and np.all(old[~loaded] < 1e3), (c, new, old)
     assert np.all(np.abs(new - c)[loaded] < np.abs(old - c)[loaded]), (c, new, old)
     assert np.all(np.abs(new - c) <= 2e-3 * c), (c, new)
     m = compliant["report"]

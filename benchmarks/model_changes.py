@@ -9,7 +9,8 @@ at a time (issue 20, item 9):
 * ``whole``: the scene as it is (the paper's 4 vertical distal elements, the rotator cuff
   sliding on the humeral head and the scapula, the incompressible cartilage and muscles, the
   glenohumeral penalty 200 MPa/mm on the curved articular surfaces);
-* ``compressible-muscles``: the earlier muscles, nu = 0.49 (the default before 2026-11-29);
+* ``compressible-muscles``: the earlier muscles, nu = 0.49, and the cartilages without the
+  pointwise stabilisation (the default before 2026-11-29);
 * ``compressible``: the earlier cartilage, nu = 0.4, and muscles, at 100 MPa/mm (the default
   before the incompressible cartilage);
 * ``flat``: the articular surfaces as the mesh's flat facets at 60 MPa/mm, the compressible
@@ -47,7 +48,10 @@ EARLIER_PENALTY = "contact_penalty=5MPa/mm"
 EARLIER_SUPPORTS = "humerus_horizontal_stiffness=5N/mm"
 VARIANTS = {
     "whole": [],
-    "compressible-muscles": ["soft_tissue_formulation=incompressible-cartilage"],
+    "compressible-muscles": [
+        "soft_tissue_formulation=incompressible-cartilage",
+        "soft_tissue_pointwise_bulk_ratio=0",
+    ],
     "compressible": [COMPRESSIBLE, "contact_penalty=100MPa/mm"],
     "flat": [COMPRESSIBLE, FLAT, "contact_penalty=60MPa/mm"],
     "penalty": [FLAT, EARLIER_PENALTY],

@@ -33,8 +33,11 @@ def test_the_open_joint_is_engaged_by_travel_and_no_coupled_step_fails(comm_tmp)
     assert result.status == "ok" and p["failed_steps"] == 0, p
     # the engagement ran (open at 0 deg) and handed over below the first output
     assert p["engaging_steps"] >= 1 and 0.0 < p["engaged_angle_deg"] < 3.0, p
-    area = result.series["contact_area"]["y"]
-    assert area[0] == 0.0 and area[-1] > 0.0, area  # open at 0 deg, in contact at 3 deg
+    area, force = result.series["contact_area"]["y"], result.series["contact_force"]["y"]
+    # open or barely touching at 0 deg (measured: open with nu = 0.49 muscles; 0.58 mm^2 under
+    # 1.1e-4 N with the incompressible ones), in contact at 3 deg
+    assert area[0] < 1e-6 and force[0] < 1e-3 * engage.ENGAGE_FORCE, (area, force)
+    assert area[-1] > 0.0 and force[-1] > 1e3 * force[0], (area, force)
     # the penalty's share of the energy stays within its own compliance's order (6-16 %
     # measured at coarse over 10-60 deg, where the patch spans few facets): a sanity bound,
     # not an independent number

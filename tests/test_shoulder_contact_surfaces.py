@@ -38,11 +38,12 @@ def test_the_open_joint_is_engaged_by_travel_and_no_coupled_step_fails(comm_tmp)
     # 1.1e-4 N with the incompressible ones), in contact at 3 deg
     assert area[0] < 1e-6 and force[0] < 1e-3 * engage.ENGAGE_FORCE, (area, force)
     assert area[-1] > 0.0 and force[-1] > 1e3 * force[0], (area, force)
-    # the penalty's share of the energy stays within its own compliance's order (6-16 %
-    # measured at coarse over 10-60 deg, where the patch spans few facets): a sanity bound,
-    # not an independent number
+    # the penalty's share of the energy at 3 deg, just engaged, stays within its own
+    # compliance's order: a sanity bound, not an independent number (measured at coarse with
+    # the incompressible muscles 0.55, under 2 ranks, and 0.20-0.30 over 10-60 deg, where the
+    # stabilised one-element cartilage layers are stiff; 0.06-0.16 with nu = 0.49 muscles)
     share = result.series["glenohumeral_penalty_energy_share"]["y"][-1]
-    assert 0.0 < share < 0.5, share
+    assert 0.0 < share < 0.75, share
 
 
 def test_the_engagement_changes_the_path_not_the_state(comm_tmp, monkeypatch):

@@ -31,7 +31,6 @@ from scipy.spatial import cKDTree
 from shoulder_fem.engine.contact.geometry import closest_points_on_triangles
 from shoulder_fem.families.shoulder.geometry import gather_rows
 from shoulder_fem.families.shoulder.interactions import mixed_law, soft_tissue_laws
-from shoulder_fem.forms import materials
 from shoulder_fem.forms.kinematics import deformation_gradient, right_cauchy_green
 from shoulder_fem.meshes import shoulder as S
 
@@ -145,16 +144,15 @@ class EnergyShare:
     Args:
         u: The displacement (P2).
         cell_tags: The mesh's cell tags (the two cartilage layers: :data:`meshes.shoulder`).
-        law: The cartilage's law; with ``isochoric`` only its isochoric energy is counted (the
-            incompressible option, whose volumetric energy vanishes with the volume change).
+        law: The energy counted in the cartilage (for an incompressible cartilage its
+            pointwise part, :func:`mixed_law`: the volumetric energy vanishes with the volume
+            change).
         quadrature: Form-compiler parameters of the volume forms.
     """
 
-    def __init__(self, u: dolfinx.fem.Function, cell_tags, law, isochoric: bool, quadrature):
+    def __init__(self, u: dolfinx.fem.Function, cell_tags, law, quadrature):
         mesh = u.function_space.mesh
         self.comm = mesh.comm
-        if isochoric:
-            law = materials.Isochoric(law)
         dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=quadrature)
         W = law.strain_energy(right_cauchy_green(deformation_gradient(u)))
         ids = (S.HUMERAL_CARTILAGE.id, S.GLENOID_CARTILAGE.id)
@@ -164,9 +162,9 @@ class EnergyShare:
     def of_model(cls, u: dolfinx.fem.Function, cell_tags, params) -> EnergyShare:
         """The share for the shoulder's cartilage law (``ShoulderParameters`` ``params``)."""
         law = soft_tissue_laws(params)[0]
-        if params.incompressible_cartilage:  # its pointwise energy; the volumetric one is 0
-            return cls(u, cell_tags, mixed_law(law, params), False, params.quadrature())
-        return cls(u, cell_tags, law, False, params.quadrature())
+        if params.incompressible_cartilage:
+            law = mixed_law(law, params)
+        return cls(u, cell_tags, law, params.quadrature())
 
     def cartilage_energy(self) -> float:
         """The two cartilage layers' strain energy (J)."""

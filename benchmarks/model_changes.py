@@ -28,11 +28,19 @@ nodal von Mises stress, the humerus's swing, the contact's reach on the humeral 
 supports' forces and the cuff's force on the head; per run its status, steps, failed steps,
 Newton iterations and CPU time. Writes ``model_changes.json`` and ``model_changes.png`` (the
 coupled runs; the decoupled ones are in the JSON). Every figure is measured; it asserts nothing.
+
+An existing ``model_changes.json`` in ``--out`` is updated, not replaced: the levels and
+variants run now replace their entries, the others keep theirs. Each entry names the commit
+and the date it was measured on (``measured``), so a partial rerun (``--levels coarse``) says
+which entries are older.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import json
+import subprocess
 import tempfile
 from pathlib import Path
 
@@ -145,6 +153,27 @@ def plot(data: dict, path: Path) -> None:
     save_figure(fig, path)
 
 
+def source_commit() -> str:
+    """The commit of the checkout this script runs from (``+dirty`` if it has changes)."""
+    here = Path(__file__).resolve().parent
+
+    def git(*cmd: str) -> str:
+        done = subprocess.run(["git", *cmd], cwd=here, capture_output=True, text=True)
+        return done.stdout.strip() if done.returncode == 0 else ""
+
+    commit = git("rev-parse", "--short", "HEAD") or "unknown"
+    return commit + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def earlier(path: Path) -> dict:
+    """The results already in ``path`` (the variants' definitions renewed), or none."""
+    data = {"scene": "shoulder-internal-rotation", "levels": {}}
+    if path.is_file():
+        data = json.loads(path.read_text())
+    data["variants"] = VARIANTS
+    return data
+
+
 def main() -> None:
     matplotlib.use("Agg")
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -152,17 +181,21 @@ def main() -> None:
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = ap.parse_args()
-    data = {"scene": "shoulder-internal-rotation", "variants": VARIANTS, "levels": {}}
+    data = earlier(args.out / "model_changes.json")
+    measured = {"commit": source_commit(), "date": datetime.date.today().isoformat()}
     with tempfile.TemporaryDirectory(prefix="model-changes-") as tmp:
         for level in args.levels:
             cases = {}
             for case in args.variants:
                 cases[case] = {
-                    m: one(level, VARIANTS[case], m, Path(tmp) / f"{level}-{case}-{m}")
+                    m: {
+                        **one(level, VARIANTS[case], m, Path(tmp) / f"{level}-{case}-{m}"),
+                        "measured": measured,
+                    }
                     for m in METHODS
                 }
                 print(level, case, {m: cases[case][m]["status"] for m in METHODS}, flush=True)
-            data["levels"][level] = cases
+            data["levels"].setdefault(level, {}).update(cases)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out / "model_changes.json", data)
     plot(data, args.out / "model_changes.png")

@@ -130,6 +130,7 @@ def plot(data: dict, path: Path) -> None:
     for level, cases in data["levels"].items():
         for case, runs in cases.items():
             s = runs["coupled"]["series"]
+            commit = runs["coupled"].get("measured", {}).get("commit", "?")
             for ax, (key, scale, unit, title) in zip(axes.flat, PANELS, strict=True):
                 if key in s:
                     kw = {"color": colours[case], "ls": styles.get(level, "-")}
@@ -137,7 +138,7 @@ def plot(data: dict, path: Path) -> None:
                         s[key]["x"],
                         [v * scale for v in s[key]["y"]],
                         **kw,
-                        label=f"{case}, {level}",
+                        label=f"{case}, {level} ({commit})",
                     )
                 ax.set(xlabel="internal rotation (deg)", ylabel=unit, title=title)
         edge = next(iter(cases.values()))["coupled"]["cap_half_angle_deg"]
@@ -146,7 +147,8 @@ def plot(data: dict, path: Path) -> None:
     axes.flat[0].legend(fontsize=7)
     fig.suptitle(
         "coupled method; whole = the scene (paper's supports, cuff on the bones, incompressible "
-        "cartilage and muscles, curved surfaces, 200 MPa/mm); "
+        "cartilage and muscles, curved surfaces, 200 MPa/mm) at the commit in brackets "
+        "(before 134d253 the muscles had nu = 0.49);\n"
         "each other line puts back one earlier simplification, earlier = all of them",
         fontsize=9,
     )
@@ -180,8 +182,14 @@ def main() -> None:
     ap.add_argument("--levels", nargs="+", default=["coarse", "medium"])
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    ap.add_argument(
+        "--plot-only", action="store_true", help="redraw the figure from the JSON; run nothing"
+    )
     args = ap.parse_args()
     data = earlier(args.out / "model_changes.json")
+    if args.plot_only:
+        plot(data, args.out / "model_changes.png")
+        return
     measured = {"commit": source_commit(), "date": datetime.date.today().isoformat()}
     with tempfile.TemporaryDirectory(prefix="model-changes-") as tmp:
         for level in args.levels:

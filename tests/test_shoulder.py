@@ -63,6 +63,8 @@ SERIES = (
     "actuation",
     "scapula_max_von_mises",
     "humeral_swing",
+    "humeral_swing_elevation",
+    "humeral_swing_azimuth",
     "soft_tissue_max_i1bar",
     "humeral_cartilage_volume_change",
     "glenoid_cartilage_volume_change",
@@ -583,6 +585,28 @@ def test_swing_and_twist_by_hand():
     assert math.degrees(SG.swing_angle(both, axis)) == pytest.approx(25.0)
 
 
+def test_swing_parts_by_hand():
+    """The swing split into elevation and azimuth, for a shaft 50 deg from the vertical in the
+    x-z plane (distal end lateral and down, as the scene's): a turn about the vertical changes
+    its azimuth only, a turn about the y axis its elevation only, and a twist about the shaft
+    neither; for a general rotation the two parts give back the total swing (spherical law of
+    cosines)."""
+    e0 = math.radians(50.0)
+    up = -np.array([math.sin(e0), 0.0, -math.cos(e0)])  # the shaft axis points proximally
+    about_z = Rotation.from_rotvec(np.radians(30.0) * np.array([0.0, 0.0, 1.0])).as_matrix()
+    assert np.degrees(SG.swing_parts(about_z, up)) == pytest.approx([0.0, 30.0], abs=1e-9)
+    # about -y: the distal end (+x, -z) rises towards +x: abduction by 12 deg
+    about_y = Rotation.from_rotvec(np.radians(-12.0) * np.array([0.0, 1.0, 0.0])).as_matrix()
+    assert np.degrees(SG.swing_parts(about_y, up)) == pytest.approx([12.0, 0.0], abs=1e-9)
+    twist = Rotation.from_rotvec(np.radians(60.0) * up).as_matrix()
+    assert np.degrees(SG.swing_parts(twist, up)) == pytest.approx([0.0, 0.0], abs=1e-9)
+    R = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix() @ twist
+    d_elev, d_azim = SG.swing_parts(R, up)
+    e1 = e0 + d_elev
+    cos_swing = math.sin(e0) * math.sin(e1) * math.cos(d_azim) + math.cos(e0) * math.cos(e1)
+    assert math.acos(cos_swing) == pytest.approx(SG.swing_angle(R, up), abs=1e-12)
+
+
 def test_cap_angles_by_hand():
     """Angles from a cap's axis seen from its centre: on the axis, at 45 and 90 deg, behind."""
     centre, axis = np.array([1.0, 2.0, 3.0]), np.array([0.0, 1.0, 0.0])
@@ -611,6 +635,16 @@ def test_swing_and_the_contact_on_the_humeral_cartilage(study):
     # the paper's supports: a swing that grows with the twist (held under 1.5 deg by the
     # earlier model's horizontal elements: test_horizontal_elements_hold_the_swing)
     assert swing_c[1] > 10.0 and np.all(np.diff(swing_c) > 0), swing_c
+    # its two parts (measured at 60 deg: elevation -26.7 deg, azimuth +45.1 deg) give back the
+    # swing, with the shaft's elevation from the downward vertical at rest (spherical cosines)
+    _, elev = _series(cpl, "humeral_swing_elevation")
+    _, azim = _series(cpl, "humeral_swing_azimuth")
+    geometry = MS.geometry_from_values(load_scene("shoulder-internal-rotation").values())
+    distal = MS.layout(geometry).rot @ MS.shaft_axis(geometry)[0]
+    e0 = math.acos(-distal[2] / np.linalg.norm(distal))  # 50 deg: the arm is abducted
+    e1, a = e0 + np.radians(elev), np.radians(azim)
+    back = np.degrees(np.arccos(np.sin(e0) * np.sin(e1) * np.cos(a) + np.cos(e0) * np.cos(e1)))
+    assert np.allclose(back, swing_c, atol=1e-6), (back, swing_c)
     _, mean_c = _series(cpl, "humeral_cap_contact_angle")
     _, mean_d = _series(dec, "humeral_cap_contact_angle")
     # the other method (measured: within 0.2 deg over 0-60 deg)

@@ -100,6 +100,25 @@ def swing_angle(R: np.ndarray, axis: np.ndarray) -> float:
     return math.acos(float(np.clip(np.dot(axis, R @ axis), -1.0, 1.0)))
 
 
+def swing_parts(R: np.ndarray, axis: np.ndarray) -> tuple[float, float]:
+    """The swing of the shaft under ``R`` (rad) as a change of elevation and of azimuth.
+
+    The frame is the shoulder's (x lateral, y anterior, z up) and ``axis`` points up the shaft
+    (:attr:`ShoulderModel.shaft_axis`). Elevation: the change of the shaft's angle from the
+    downward vertical (positive: raised, as in abduction; what the vertical distal elements
+    resist). Azimuth: the change of the shaft's horizontal direction about the vertical
+    (positive: its distal end turns from lateral towards anterior; a horizontal swing, which
+    vertical elements do not resist).
+    """
+    a, b = -np.asarray(axis, dtype=float), -(np.asarray(R, dtype=float) @ axis)  # distal
+
+    def elevation(d: np.ndarray) -> float:
+        return math.acos(float(np.clip(-d[2] / np.linalg.norm(d), -1.0, 1.0)))
+
+    turn = math.atan2(float(b[1]), float(b[0])) - math.atan2(float(a[1]), float(a[0]))
+    return elevation(b) - elevation(a), math.remainder(turn, 2.0 * math.pi)
+
+
 def cap_angles(X: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Angles (rad) of points ``X`` (n, 3) from the unit ``axis`` of a cap, seen from ``centre``."""
     d = np.asarray(X, dtype=float).reshape(-1, 3) - centre

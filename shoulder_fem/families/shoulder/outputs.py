@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from shoulder_fem.engine.contact import Contact
 from shoulder_fem.engine.rigid_system import RigidSystem
-from shoulder_fem.families.shoulder.geometry import patch_centroid
+from shoulder_fem.families.shoulder.geometry import patch_centroid, swing_angle, swing_parts
 from shoulder_fem.families.shoulder.interactions import MUSCLE_BONE_PAIRS
 from shoulder_fem.families.shoulder.measures import VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel
@@ -30,6 +30,7 @@ UNCORRECTED = "uncorrected_"
 
 __all__ = [
     "record_muscle_bone",
+    "record_swing",
     "record_time_split",
     "record_von_mises",
     "save_npz",
@@ -92,6 +93,22 @@ def record_von_mises(
     data["von_mises"] = stress_vm.nodal(comm)
     data["von_mises_angle_deg"] = x
     data.setdefault("von_mises_series", []).append((x, data["von_mises"][1]))
+
+
+def record_swing(recorder: Recorder, x: float, R: np.ndarray, shaft_axis: np.ndarray) -> None:
+    """The humerus's swing at output ``x`` deg (series ``humeral_swing``, deg) and its parts.
+
+    ``humeral_swing_elevation``: the change of the shaft's angle from the downward vertical
+    (positive: raised, as in abduction; what vertical distal elements resist);
+    ``humeral_swing_azimuth``: the turn of its horizontal direction about the vertical
+    (positive: the distal end from lateral towards anterior). ``R``: the humerus's rotation;
+    ``shaft_axis``: unit, proximal (:func:`.geometry.swing_parts`).
+    """
+    recorder.add_series_point(
+        "humeral_swing", x, math.degrees(swing_angle(R, shaft_axis)), "deg", "deg"
+    )
+    for name, a in zip(("elevation", "azimuth"), swing_parts(R, shaft_axis), strict=True):
+        recorder.add_series_point(f"humeral_swing_{name}", x, math.degrees(a), "deg", "deg")
 
 
 def record_time_split(

@@ -47,6 +47,7 @@ from shoulder_fem.families.shoulder.newton import (
 )
 from shoulder_fem.families.shoulder.outputs import (
     record_muscle_bone,
+    record_swing,
     record_time_split,
     record_von_mises,
 )
@@ -491,7 +492,7 @@ class AngleOutputs:
         rec = self.recorder
         res = self.job.contact.resultants()["glenohumeral"]
         rec.add_series_point("humeral_angle", x, deg, "deg", "deg")
-        rec.add_series_point("humeral_swing", x, math.degrees(self.swing()), "deg", "deg")
+        record_swing(rec, x, self.job.rotation(), self.model.shaft_axis)
         mean, top = self.cap_position()
         rec.add_series_point("humeral_cap_contact_angle", x, mean, "deg", "deg")
         rec.add_series_point("humeral_cap_contact_angle_max", x, top, "deg", "deg")
@@ -548,8 +549,7 @@ class AngleOutputs:
 def run_steps(model: ShoulderModel, run: RunContext, job: Stepping) -> dict:
     """Drive the rotation, recording every output angle (collective).
 
-    ``job.rotation()`` is the humerus's current rotation: its twist about the shaft axis is the
-    progress angle, its swing (how far the shaft axis itself turns) is recorded with it.
+    ``job.rotation()``: the humerus's rotation; its twist about the shaft is the progress angle.
 
     Returns:
         The outputs for ``shoulder.npz`` (:func:`outputs.save_results`), with the final angle

@@ -51,9 +51,12 @@ MPA = 1e-6
 """Factor from the runs' pascals to the report's megapascals."""
 
 #: The humerus's motion series compared per angle (``<series>_deg`` in ``per_angle``) and
-#: their column labels: the swing and where the glenoid presses on the humeral cartilage.
+#: their column labels: the swing (and its parts: the shaft's change of elevation and of
+#: azimuth about the vertical) and where the glenoid presses on the humeral cartilage.
 MOTION_SERIES = (
     ("humeral_swing", "swing"),
+    ("humeral_swing_elevation", "elevation change"),
+    ("humeral_swing_azimuth", "azimuth change"),
     ("humeral_cap_contact_angle", "contact mean"),
     ("humeral_cap_contact_angle_max", "contact max"),
     ("humeral_cap_edge_margin", "margin to the edge"),

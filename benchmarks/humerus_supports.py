@@ -22,13 +22,15 @@ Per run and output angle: the swing split into the change of the shaft's elevati
 azimuth about the vertical (``humeral_swing_elevation``, ``humeral_swing_azimuth``), where the
 glenoid presses on the humeral cartilage and the margin to its edge, the supports' forces, the
 peak glenoid pressure and the muscle forces; per run its status, steps, Newton iterations and
-CPU time. Writes ``humerus_supports.json`` and ``humerus_supports.png``. Every figure is
+CPU time and the commit it was measured on. Writes ``humerus_supports.json`` (an existing one
+is updated: the cases run now replace theirs) and ``humerus_supports.png``. Every figure is
 measured; it asserts nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -84,11 +86,12 @@ def plot(data: dict, path: Path) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(15, 8), layout="constrained")
     colours = {s: f"C{k}" for k, s in enumerate(SUPPORTS)}
     styles = {"70": ":", "78": "-"}
+    widths = {"medium": 2.4, "paper": 3.4}
     for level, cases in data["levels"].items():
         for name, r in cases.items():
             support, cap = name.rsplit(", ", 1)
             cap = cap.split()[0]
-            kw = {"color": colours[support], "ls": styles[cap]}
+            kw = {"color": colours[support], "ls": styles[cap], "lw": widths.get(level, 1.2)}
             label = f"{support}, {cap} deg cap, {level} (to {r['final_angle_deg']:.1f} deg)"
             for ax, (key, scale, _, _) in zip(axes.flat, PANELS, strict=True):
                 if key in r["series"]:
@@ -103,7 +106,7 @@ def plot(data: dict, path: Path) -> None:
     fig.suptitle(
         "decoupled method: the humerus on the paper's vertical elements (100 mm links or fixed "
         "direction) and with horizontal elements; caps 70 deg (dotted) and 78 deg (solid); "
-        "grey lines: the caps' edges"
+        "grey lines: the caps' edges; thicker lines: finer levels"
     )
     save_figure(fig, path)
 
@@ -117,23 +120,21 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="runs at a time, one core each")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = ap.parse_args()
-    data = {
-        "scene": "shoulder-internal-rotation",
-        "method": "decoupled",
-        "measured": source_commit(),
-        "supports": SUPPORTS,
-        "caps": CAPS,
-        "levels": {level: {} for level in args.levels},
-    }
+    path = args.out / "humerus_supports.json"
+    data = json.loads(path.read_text()) if path.is_file() else {"levels": {}}  # updated
+    data.update(scene="shoulder-internal-rotation", method="decoupled", supports=SUPPORTS)
+    data["caps"] = CAPS
+    commit = source_commit()
     with tempfile.TemporaryDirectory(prefix="humerus-supports-") as tmp:
         jobs = [(lv, s, c, tmp) for lv in args.levels for s in args.supports for c in args.caps]
         ctx = multiprocessing.get_context("spawn")  # each run its own MPI and PETSc
         with ProcessPoolExecutor(max_workers=args.jobs, mp_context=ctx) as pool:
             for level, support, cap, r in pool.map(_case, jobs):
-                data["levels"][level][f"{support}, {cap} deg cap"] = r
+                r["measured"] = commit
+                data["levels"].setdefault(level, {})[f"{support}, {cap} deg cap"] = r
                 print(level, support, cap, r["status"], f"{r['final_angle_deg']:.2f} deg")
     args.out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(args.out / "humerus_supports.json", data)
+    atomic_write_json(path, data)
     plot(data, args.out / "humerus_supports.png")
 
 

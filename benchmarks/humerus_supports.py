@@ -75,10 +75,15 @@ PANELS = (
 
 
 def _case(job: tuple) -> tuple[str, str, str, dict]:
-    level, support, cap, tmp = job
+    level, support, cap, extra, tmp = job
     out = Path(tmp) / f"{level}-{support.replace(' ', '_').replace('/', '')}-{cap}"
-    r = one(level, SUPPORTS[support] + CAPS[cap], "decoupled", out, series=SERIES)
-    return level, support, cap, r
+    r = one(level, SUPPORTS[support] + CAPS[cap] + extra, "decoupled", out, series=SERIES)
+    return level, support, cap, {"support": support, "cap": cap, "extra": extra, **r}
+
+
+def case_name(support: str, cap: str, extra: list[str]) -> str:
+    """The JSON key of a case: ``<support>, <cap> deg cap`` and any ``--set`` in brackets."""
+    return f"{support}, {cap} deg cap" + (f" [{' '.join(extra)}]" if extra else "")
 
 
 def plot(data: dict, path: Path) -> None:
@@ -89,14 +94,14 @@ def plot(data: dict, path: Path) -> None:
     widths = {"medium": 2.4, "paper": 3.4}
     for level, cases in data["levels"].items():
         for name, r in cases.items():
-            support, cap = name.rsplit(", ", 1)
-            cap = cap.split()[0]
-            kw = {"color": colours[support], "ls": styles[cap], "lw": widths.get(level, 1.2)}
-            label = f"{support}, {cap} deg cap, {level} (to {r['final_angle_deg']:.1f} deg)"
+            cap = r["cap"]
+            kw = {"color": colours[r["support"]], "ls": styles[cap], "lw": widths.get(level, 1.2)}
+            kw["marker"] = "x" if r["extra"] else "."
+            label = f"{name}, {level} (to {r['final_angle_deg']:.1f} deg)"
             for ax, (key, scale, _, _) in zip(axes.flat, PANELS, strict=True):
                 if key in r["series"]:
                     s = r["series"][key]
-                    ax.plot(s["x"], [v * scale for v in s["y"]], marker=".", **kw, label=label)
+                    ax.plot(s["x"], [v * scale for v in s["y"]], **kw, label=label)
             if cap == "78":
                 axes.flat[2].axhline(r["cap_half_angle_deg"], color="0.5", lw=0.6)
     axes.flat[2].axhline(70.0, color="0.5", lw=0.6, ls=":")
@@ -106,7 +111,7 @@ def plot(data: dict, path: Path) -> None:
     fig.suptitle(
         "decoupled method: the humerus on the paper's vertical elements (100 mm links or fixed "
         "direction) and with horizontal elements; caps 70 deg (dotted) and 78 deg (solid); "
-        "grey lines: the caps' edges; thicker lines: finer levels"
+        "grey lines: the caps' edges; thicker lines: finer levels; crosses: with --set overrides"
     )
     save_figure(fig, path)
 
@@ -118,6 +123,7 @@ def main() -> None:
     ap.add_argument("--supports", nargs="+", default=list(SUPPORTS), choices=list(SUPPORTS))
     ap.add_argument("--caps", nargs="+", default=list(CAPS), choices=list(CAPS))
     ap.add_argument("--jobs", type=int, default=1, help="runs at a time, one core each")
+    ap.add_argument("--set", nargs="*", default=[], help="more overrides, for every case")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = ap.parse_args()
     path = args.out / "humerus_supports.json"
@@ -126,12 +132,17 @@ def main() -> None:
     data["caps"] = CAPS
     commit = source_commit()
     with tempfile.TemporaryDirectory(prefix="humerus-supports-") as tmp:
-        jobs = [(lv, s, c, tmp) for lv in args.levels for s in args.supports for c in args.caps]
+        jobs = [
+            (lv, s, c, args.set, tmp)
+            for lv in args.levels
+            for s in args.supports
+            for c in args.caps
+        ]
         ctx = multiprocessing.get_context("spawn")  # each run its own MPI and PETSc
         with ProcessPoolExecutor(max_workers=args.jobs, mp_context=ctx) as pool:
             for level, support, cap, r in pool.map(_case, jobs):
                 r["measured"] = commit
-                data["levels"].setdefault(level, {})[f"{support}, {cap} deg cap"] = r
+                data["levels"].setdefault(level, {})[case_name(support, cap, args.set)] = r
                 print(level, support, cap, r["status"], f"{r['final_angle_deg']:.2f} deg")
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, data)

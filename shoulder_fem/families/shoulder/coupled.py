@@ -54,7 +54,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     actuator = RigidBody("actuator", origin, prescribed=True)
     bodies.append(actuator)
     ties.append(Tie("actuator", "subscapularis_origin"))
-    check = SoftTissueCheck(u, ct_)
+    check = SoftTissueCheck(u, ct_, p.trial_check, p.quadrature_degree)
     # each bone's share of every Newton step turns by a finite rotation (on the paper's supports
     # the humerus swings by tens of degrees and the scapula turns with it: a linear step
     # strains the stiff bone; engine/rigid_system/corotation.py; with the cartilages in the

@@ -308,7 +308,7 @@ class Part1:
         actuator = RigidBody("actuator", origin, prescribed=True)
         self.springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
         ties, tied = part1_ties(ft, ct_, p)
-        check = SoftTissueCheck(u, ct_)
+        check = SoftTissueCheck(u, ct_, p.trial_check, p.quadrature_degree)
         self.system = system = RigidSystem(
             [humerus, scapula, actuator],
             self.springs,

@@ -70,6 +70,7 @@ class ShoulderParameters:
     soft_tissue_pointwise_bulk_ratio: float
     soft_tissue_volume_tolerance: float
     quadrature_degree: int
+    trial_check: str
     spring_length: float
     scapula_spring_stiffness: float
     ap_spring_stiffness: float

@@ -2,7 +2,10 @@
 
 A trial state is admissible when no soft-tissue element is inverted (J = det F > 0) and the
 isochoric invariant I1bar stays below :data:`TRIAL_I1BAR_MAX`, checked at the P2 element's ten
-nodes and its centroid. Inverted elements, where the laws are not defined, and the
+nodes and its centroid (``trial_check = "nodes"``, the default) or at the volume forms'
+quadrature points, the only points where the laws are evaluated (``"quadrature"``: a P2 element
+whose corner folds while its quadrature points stay sound passes; README, "The humerus's swing
+on the paper's supports"). Inverted elements, where the laws are not defined, and the
 Veronda-Westmann exponential far beyond any physical stretch (I1bar - 3 = 55 gave residuals of
 1e55 and then NaN) are thereby never evaluated: the Newton step is halved instead
 (:class:`~shoulder_fem.engine.rigid_system.guard.TrialGuard`). The bounds act on trial states
@@ -15,6 +18,7 @@ edge: README, "Incompressible soft tissue").
 
 from __future__ import annotations
 
+import basix
 import dolfinx
 import numpy as np
 import ufl
@@ -28,7 +32,7 @@ from shoulder_fem.forms.kinematics import (
 )
 from shoulder_fem.meshes import shoulder as S
 
-__all__ = ["TRIAL_I1BAR_MAX", "SoftTissueCheck"]
+__all__ = ["TRIAL_CHECKS", "TRIAL_I1BAR_MAX", "SoftTissueCheck"]
 
 #: The largest I1bar allowed in a Newton trial state (beta (I1bar - 3) = 100 for the muscles:
 #: an exponential factor of 3e43, still far from overflowing).
@@ -42,15 +46,31 @@ POINTS = np.vstack(
 )
 
 
+#: Where :meth:`SoftTissueCheck.admissible` looks (scene parameter ``trial_check``).
+TRIAL_CHECKS = ("nodes", "quadrature")
+
+
 class SoftTissueCheck:
     """J and I1bar of the soft tissues of ``u`` at :data:`POINTS` (collective).
 
     Args:
         u: The displacement (P2).
         cell_tags: The mesh's cell tags (soft tissues: :data:`meshes.shoulder.SOFT`).
+        guard: Where :meth:`admissible` checks: ``nodes`` (:data:`POINTS`) or ``quadrature``
+            (the volume forms' points of degree ``degree``). The recorded ranges
+            (:meth:`j_range`, :meth:`i1bar_max`) are at :data:`POINTS` either way.
+        degree: The volume forms' quadrature degree (``quadrature`` only).
     """
 
-    def __init__(self, u: dolfinx.fem.Function, cell_tags: dolfinx.mesh.MeshTags):
+    def __init__(
+        self,
+        u: dolfinx.fem.Function,
+        cell_tags: dolfinx.mesh.MeshTags,
+        guard: str = "nodes",
+        degree: int = 4,
+    ):
+        if guard not in TRIAL_CHECKS:
+            raise ValueError(f"trial_check = {guard!r}: must be one of {', '.join(TRIAL_CHECKS)}")
         mesh = u.function_space.mesh
         self.comm = mesh.comm
         n_owned = mesh.topology.index_map(3).size_local
@@ -59,15 +79,19 @@ class SoftTissueCheck:
         F = deformation_gradient(u)
         # I1bar as the laws evaluate it; J signed (det F), so that an inverted element shows
         i1bar, _, _ = isochoric_invariants(right_cauchy_green(F))
-        self.expr = dolfinx.fem.Expression(
-            ufl.as_vector([ufl.det(F), i1bar]), POINTS, jit_params=JIT_PARAMS
-        )
+        checked = ufl.as_vector([ufl.det(F), i1bar])
+        self.expr = dolfinx.fem.Expression(checked, POINTS, jit_params=JIT_PARAMS)
+        self.guard_expr = self.expr
+        if guard == "quadrature":
+            points, _ = basix.make_quadrature(basix.CellType.tetrahedron, degree)
+            self.guard_expr = dolfinx.fem.Expression(checked, points, jit_params=JIT_PARAMS)
 
-    def values(self) -> tuple[np.ndarray, np.ndarray]:
-        """(J, I1bar) at the owned soft-tissue cells' points, flattened (this rank's)."""
+    def values(self, guard: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(J, I1bar) at the owned soft-tissue cells' points (the guard's if ``guard``), flat."""
         if len(self.cells) == 0:
             return np.zeros(0), np.zeros(0)
-        out = self.expr.eval(self.cells).reshape(len(self.cells), len(POINTS), 2)
+        expr = self.guard_expr if guard else self.expr
+        out = expr.eval(self.cells).reshape(len(self.cells), -1, 2)
         return out[:, :, 0].ravel(), out[:, :, 1].ravel()
 
     def j_range(self) -> tuple[float, float]:
@@ -84,7 +108,7 @@ class SoftTissueCheck:
 
     def admissible(self) -> bool:
         """Whether the current state may be a Newton trial state (same on every rank)."""
-        J, i1bar = self.values()
+        J, i1bar = self.values(guard=True)
         with np.errstate(invalid="ignore"):
             ok = bool(np.all((J > 0.0) & (i1bar < TRIAL_I1BAR_MAX)))
         return bool(self.comm.allreduce(ok, op=MPI.LAND))

@@ -37,6 +37,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 from model_changes import one, source_commit  # a sibling script: benchmarks/ is sys.path[0]
 
 from shoulder_fem.io.output import atomic_write_json
@@ -88,7 +89,11 @@ def case_name(support: str, cap: str, extra: list[str]) -> str:
 
 def plot(data: dict, path: Path) -> None:
     """The swing's parts, the contact's reach, the supports' forces against the twist."""
-    fig, axes = plt.subplots(2, 3, figsize=(15, 8), layout="constrained")
+    fig = plt.figure(figsize=(15, 11), layout="constrained")
+    grid = fig.add_gridspec(3, 3, height_ratios=(1.0, 1.0, 0.5))
+    axes = np.array([fig.add_subplot(grid[i, j]) for i in range(2) for j in range(3)])
+    legend_ax = fig.add_subplot(grid[2, :])
+    legend_ax.axis("off")
     colours = {s: f"C{k}" for k, s in enumerate(SUPPORTS)}
     styles = {"70": ":", "78": "-"}
     widths = {"medium": 2.4, "paper": 3.4}
@@ -107,11 +112,11 @@ def plot(data: dict, path: Path) -> None:
     axes.flat[2].axhline(70.0, color="0.5", lw=0.6, ls=":")
     for ax, (_, _, unit, title) in zip(axes.flat, PANELS, strict=True):
         ax.set(xlabel="internal rotation (deg)", ylabel=unit, title=title)
-    axes.flat[0].legend(fontsize=6)
+    legend_ax.legend(*axes[0].get_legend_handles_labels(), loc="center", ncol=2, fontsize=8)
     fig.suptitle(
         "decoupled method: the humerus on the paper's vertical elements (100 mm links or fixed "
-        "direction) and with horizontal elements; caps 70 deg (dotted) and 78 deg (solid); "
-        "grey lines: the caps' edges; thicker lines: finer levels; crosses: with --set overrides"
+        "direction) and with horizontal elements\ncaps 70 deg (dotted) and 78 deg (solid); grey "
+        "lines: the caps' edges; thicker lines: finer levels; crosses: with --set overrides"
     )
     save_figure(fig, path)
 

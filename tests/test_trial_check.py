@@ -17,6 +17,9 @@ from mpi4py import MPI
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
 from shoulder_fem.meshes import shoulder as S
 
+#: serial and under mpirun -n 2 (rank 0 owns the cell, rank 1 none: the check is collective)
+pytestmark = pytest.mark.mpi
+
 C = -0.6
 
 

@@ -107,9 +107,8 @@ def plot(data: dict, path: Path) -> None:
                 if key in r["series"]:
                     s = r["series"][key]
                     ax.plot(s["x"], [v * scale for v in s["y"]], **kw, label=label)
-            if cap == "78":
-                axes.flat[2].axhline(r["cap_half_angle_deg"], color="0.5", lw=0.6)
-    axes.flat[2].axhline(70.0, color="0.5", lw=0.6, ls=":")
+            # each cap's edge as the run measured it on its mesh (70.14 deg for the 70 cap)
+            axes.flat[2].axhline(r["cap_half_angle_deg"], color="0.5", lw=0.6, ls=styles[cap])
     for ax, (_, _, unit, title) in zip(axes.flat, PANELS, strict=True):
         ax.set(xlabel="internal rotation (deg)", ylabel=unit, title=title)
     legend_ax.legend(*axes[0].get_legend_handles_labels(), loc="center", ncol=2, fontsize=8)

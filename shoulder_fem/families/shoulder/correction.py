@@ -54,7 +54,7 @@ from shoulder_fem.families.shoulder.newton import solve_with_fallback
 from shoulder_fem.families.shoulder.outputs import UNCORRECTED
 from shoulder_fem.families.shoulder.part2 import owned_nodes
 from shoulder_fem.families.shoulder.stepping import AngleOutputs, StepLog, output_tolerance
-from shoulder_fem.families.shoulder.volume import augment
+from shoulder_fem.families.shoulder.volume import Keeping, augment
 from shoulder_fem.io.results import Recorder
 
 __all__ = ["UNCORRECTED", "NodalValues", "Offsets", "adopt", "correct_part1"]
@@ -162,7 +162,7 @@ def _scaled(moved: dict, share: float) -> dict:
     }
 
 
-def _resolve(part1, k: int, moved: dict, log: StepLog, tolerance: float) -> tuple[int, int]:
+def _resolve(part1, k: int, moved: dict, log: StepLog, keeping: Keeping) -> tuple[int, int]:
     """Part 1 from output ``k``'s state with the bones' offsets: (its solve's, the updates') its.
 
     The updates: the incompressible tissue's multipliers after the solve (:func:`augment`).
@@ -193,7 +193,7 @@ def _resolve(part1, k: int, moved: dict, log: StepLog, tolerance: float) -> tupl
                 raise
             why = err.reason
             logger.warning("%s: %s; the offsets again in %d pieces", name, why, OFFSET_PIECES)
-    updates = augment(system, name, tolerance)
+    updates = augment(system, name, keeping)
     part1.contact.commit()
     return its, updates
 
@@ -233,7 +233,7 @@ def correct_part1(
     before = (system.stats.newton_iterations, system.stats.factorizations)
     stop = None
     vol = part1.volumetric
-    tolerance = part1.model.params.soft_tissue_volume_tolerance if vol is not None else 0.0
+    keeping = Keeping.of(part1.model.params) if vol is not None else Keeping(0.0)
     try:
         with output_tolerance(system, CORRECTION_ATOL):  # these are outputs
             for k, by_body in enumerate(offsets):  # one per output state
@@ -243,7 +243,7 @@ def correct_part1(
                     for body, o in by_body.items()
                 }
                 try:
-                    its, updates = _resolve(part1, k, moved, log, tolerance)
+                    its, updates = _resolve(part1, k, moved, log, keeping)
                 except ConvergenceError as err:
                     stop = f"part 1's correction did not converge at {deg:.0f} deg ({err.reason})"
                     logger.error("%s", stop)

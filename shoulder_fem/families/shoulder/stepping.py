@@ -53,7 +53,7 @@ from shoulder_fem.families.shoulder.outputs import (
 )
 from shoulder_fem.families.shoulder.seating import seat
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
-from shoulder_fem.families.shoulder.volume import augment
+from shoulder_fem.families.shoulder.volume import Keeping, augment
 from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.io.results import Recorder
 
@@ -145,8 +145,8 @@ class AngleStepper:
         #: kappa/mu of nearly incompressible soft tissue (the seating's continuation), or None.
         incompressible = params.incompressible_cartilage  # in both incompressible choices
         self.bulk_ratio = params.soft_tissue_bulk_ratio if incompressible else None
-        #: The largest |ln θ| of the incompressible tissue at a converged step (:func:`augment`).
-        self.volume_tolerance = params.soft_tissue_volume_tolerance if incompressible else 0.0
+        #: How the incompressible tissue's volume is kept at a converged step (:func:`augment`).
+        self.keeping = Keeping.of(params) if incompressible else Keeping(0.0)
         self.log = StepLog()
         #: Where the next ``l2`` retry starts first (:class:`.newton.RetryOrder`).
         self.retry_order = RetryOrder()
@@ -160,7 +160,7 @@ class AngleStepper:
     def start(self) -> None:
         """Seat the joint unloaded (:func:`~.seating.seat`), then control the plate by angle."""
         seat(self.system, self.contact, f"{self.label} 0 deg", self.bulk_ratio)
-        augment(self.system, f"{self.label} 0 deg", self.volume_tolerance)
+        augment(self.system, f"{self.label} 0 deg", self.keeping)
         self.contact.commit()
         control = self.system.set_control(
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE
@@ -250,7 +250,7 @@ class AngleStepper:
                 system, name, snap, predicted, self.log, order=self.retry_order
             )
             # the step's length follows its own solve, not the multipliers' (1-2 each)
-            updates = augment(system, name, self.volume_tolerance)
+            updates = augment(system, name, self.keeping)
             self.log.newton_iterations += updates
             self.log.volume_iterations += updates
         except ConvergenceError as err:

@@ -203,6 +203,32 @@ def test_a_rigid_system_names_a_solve_that_cannot_be_rescued():
     system.destroy()
 
 
+def test_the_retries_give_back_the_line_searchs_own_largest_step():
+    """:func:`solve_with_fallback`'s ``l2`` retries cap the line search's step at 1 (the full
+    Newton step the guard checked) and then give back the step the solver had before, read
+    from PETSc (7.5 here, set by the solver's options), not PETSc's default 1e8 (as it did)."""
+    from shoulder_fem.engine.solver import line_search_maxstep
+    from shoulder_fem.families.shoulder.newton import solve_with_fallback
+
+    springs, _ = six_springs()
+    body = RigidBody("b", np.zeros(3), force=[1.0, 0, 0])
+    seen = []
+    system = RigidSystem(
+        [body],
+        springs,
+        comm=MPI.COMM_WORLD,
+        admissible=lambda: seen.append(line_search_maxstep(system.snes)) and False,
+        options={"snes_max_it": 3, "snes_linesearch_maxstep": 7.5},
+    )
+    assert line_search_maxstep(system.snes) == 7.5
+    with pytest.raises(ConvergenceError, match="l2 line search"):
+        solve_with_fallback(system, "never", system.snapshot(), None, None)
+    assert 7.5 in seen and 1.0 in seen  # the first solve's, then the retries'
+    assert seen.index(1.0) > seen.index(7.5) and seen[-1] == 1.0
+    assert line_search_maxstep(system.snes) == 7.5
+    system.destroy()
+
+
 def test_mumps_options_reach_the_factorization_and_leave_with_the_solver():
     """A solver's own MUMPS option (part 1's QAMD ordering, ICNTL(7) = 6) is read at the
     factorization, after the solver's set-up: it stays in PETSc's database under the solver's

@@ -11,7 +11,7 @@ import dataclasses
 import logging
 
 from shoulder_fem.engine.rigid_system import RigidSystem
-from shoulder_fem.engine.solver import ConvergenceError
+from shoulder_fem.engine.solver import ConvergenceError, line_search_maxstep
 
 __all__ = [
     "DIVERGENCE_TOLERANCE",
@@ -58,7 +58,9 @@ FALLBACK_MAX_IT = 60
 #: prediction).
 FIRST_RETRY_MAX_IT = 20
 FALLBACK_MAX_LAMBDA = 1.0
-PETSC_MAXSTEP = 1e8  # PETSc's default
+#: PETSc's default largest line-search step: given back after the retries when the library
+#: cannot be asked for the one before (:func:`~shoulder_fem.engine.solver.line_search_maxstep`).
+PETSC_MAXSTEP = 1e8
 DIVERGENCE_TOLERANCE = 10.0
 
 #: Newton's absolute tolerance (N) at the output angles (:meth:`.stepping.AngleStepper.polish`):
@@ -135,6 +137,8 @@ def solve_with_fallback(
         logger.debug("%s: the full-step solve: %s", step, err.reason)
         failed = err
     _, _, _, max_it = system.snes.getTolerances()
+    maxstep = line_search_maxstep(system.snes)
+    maxstep = PETSC_MAXSTEP if maxstep is None else maxstep
     fallback = {
         "snes_linesearch_type": FALLBACK_LINESEARCH,
         "snes_divergence_tolerance": -1.0,
@@ -173,6 +177,6 @@ def solve_with_fallback(
                 "snes_linesearch_type": original,
                 "snes_divergence_tolerance": divergence_tolerance,
                 "snes_max_it": max_it,
-                "snes_linesearch_maxstep": PETSC_MAXSTEP,
+                "snes_linesearch_maxstep": maxstep,
             }
         )

@@ -207,7 +207,7 @@ def test_the_retries_give_back_the_line_searchs_own_largest_step():
     """:func:`solve_with_fallback`'s ``l2`` retries cap the line search's step at 1 (the full
     Newton step the guard checked) and then give back the step the solver had before, read
     from PETSc (7.5 here, set by the solver's options), not PETSc's default 1e8 (as it did)."""
-    from shoulder_fem.engine.solver import line_search_maxstep
+    from shoulder_fem.engine.petsc_lib import line_search_maxstep
     from shoulder_fem.families.shoulder.newton import solve_with_fallback
 
     springs, _ = six_springs()

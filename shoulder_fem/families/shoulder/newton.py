@@ -10,8 +10,9 @@ import contextlib
 import dataclasses
 import logging
 
+from shoulder_fem.engine.petsc_lib import line_search_maxstep
 from shoulder_fem.engine.rigid_system import RigidSystem
-from shoulder_fem.engine.solver import ConvergenceError, line_search_maxstep
+from shoulder_fem.engine.solver import ConvergenceError
 
 __all__ = [
     "DIVERGENCE_TOLERANCE",
@@ -59,7 +60,7 @@ FALLBACK_MAX_IT = 60
 FIRST_RETRY_MAX_IT = 20
 FALLBACK_MAX_LAMBDA = 1.0
 #: PETSc's default largest line-search step: given back after the retries when the library
-#: cannot be asked for the one before (:func:`~shoulder_fem.engine.solver.line_search_maxstep`).
+#: cannot be asked for the one before (:func:`~shoulder_fem.engine.petsc_lib.line_search_maxstep`).
 PETSC_MAXSTEP = 1e8
 DIVERGENCE_TOLERANCE = 10.0
 
@@ -137,8 +138,7 @@ def solve_with_fallback(
         logger.debug("%s: the full-step solve: %s", step, err.reason)
         failed = err
     _, _, _, max_it = system.snes.getTolerances()
-    maxstep = line_search_maxstep(system.snes)
-    maxstep = PETSC_MAXSTEP if maxstep is None else maxstep
+    maxstep = line_search_maxstep(system.snes) or PETSC_MAXSTEP  # None: not known
     fallback = {
         "snes_linesearch_type": FALLBACK_LINESEARCH,
         "snes_divergence_tolerance": -1.0,

@@ -70,6 +70,7 @@ class ShoulderParameters:
     soft_tissue_pointwise_bulk_ratio: float
     soft_tissue_volume_tolerance: float
     soft_tissue_penalty_raise: float
+    soft_tissue_multiplier_prediction: str
     quadrature_degree: int
     trial_check: str
     spring_length: float

@@ -53,7 +53,7 @@ from shoulder_fem.families.shoulder.outputs import (
 )
 from shoulder_fem.families.shoulder.seating import seat
 from shoulder_fem.families.shoulder.trial import SoftTissueCheck
-from shoulder_fem.families.shoulder.volume import Keeping, augment
+from shoulder_fem.families.shoulder.volume import Keeping, MultiplierPredictor, augment
 from shoulder_fem.io.fields import FieldWriter
 from shoulder_fem.io.results import Recorder
 
@@ -147,6 +147,7 @@ class AngleStepper:
         self.bulk_ratio = params.soft_tissue_bulk_ratio if incompressible else None
         #: How the incompressible tissue's volume is kept at a converged step (:func:`augment`).
         self.keeping = Keeping.of(params) if incompressible else Keeping(0.0)
+        self.lagrange = MultiplierPredictor(params.soft_tissue_multiplier_prediction == "secant")
         self.log = StepLog()
         #: Where the next ``l2`` retry starts first (:class:`.newton.RetryOrder`).
         self.retry_order = RetryOrder()
@@ -166,6 +167,7 @@ class AngleStepper:
             self.actuator.name, self.direction, self.measure, ANGLE_SCALE
         )
         self.theta = control.target  # the unloaded state's own angle
+        self.lagrange.accept(self.theta, self.system.volumetric)
         self.system.set_options({"snes_divergence_tolerance": DIVERGENCE_TOLERANCE})
         self.tangent = self.system.control_tangent(refresh=True)  # the first step's predictor
 
@@ -239,10 +241,11 @@ class AngleStepper:
                 system.predict(direction, step)
                 direction.destroy()
 
-        predict()
-        system.control.target = target
         vol = system.volumetric
         multipliers = None if vol is None else vol.multiplier.copy()
+        predict()
+        self.lagrange.predict(target, vol)
+        system.control.target = target
         name = f"{self.label} {math.degrees(target):.2f} deg"
         try:
             predicted = predict if self.tangent is not None else None
@@ -265,6 +268,7 @@ class AngleStepper:
         self.previous = None if self.tangent is None else (self.tangent, step)
         self.tangent = system.control_tangent()
         self.theta = target
+        self.lagrange.accept(target, vol)
         if self.on_angle is not None:
             self.on_angle(math.degrees(target))
         measured = self.measure(False).value
@@ -273,11 +277,7 @@ class AngleStepper:
         self.log.history.append((self.travel(), measured, its))
         logger.info(
             "%s: travel %.3f mm, angle %.6f deg (target %.2f), %d Newton iterations",
-            self.label,
-            self.travel() * 1e3,
-            math.degrees(measured),
-            math.degrees(target),
-            its,
+            *(self.label, self.travel() * 1e3, math.degrees(measured), math.degrees(target), its),
         )
         return None, its
 

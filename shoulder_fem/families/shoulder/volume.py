@@ -21,9 +21,11 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+import numpy as np
+
 from shoulder_fem.engine.solver import ConvergenceError
 
-__all__ = ["AUGMENTATIONS", "RAISE", "SLOW_UPDATE", "Keeping", "augment"]
+__all__ = ["AUGMENTATIONS", "RAISE", "SLOW_UPDATE", "Keeping", "MultiplierPredictor", "augment"]
 
 logger = logging.getLogger(__name__)
 
@@ -109,3 +111,31 @@ def augment(system, step: str, keeping: Keeping) -> int:
         f"the volume not kept to {keeping.tolerance:g} after {AUGMENTATIONS} multiplier updates"
     )
     raise ConvergenceError(step, reason, its, system.prefix)
+
+
+class MultiplierPredictor:
+    """The multipliers at a step's start, extrapolated from the last two converged steps.
+
+    λ follows the pressure, smooth in the angle: λ(θ) ≈ λ₁ + (λ₁ - λ₀)(θ - θ₁)/(θ₁ - θ₀)
+    (a secant, as the displacement's tangent prediction), so that the step's own solve leaves a
+    smaller volume error for :func:`augment`. ``enabled`` False: λ stays at the last step's.
+    """
+
+    def __init__(self, enabled: bool = True):
+        self.enabled = enabled
+        self._last: tuple[float, np.ndarray] | None = None
+        self._before: tuple[float, np.ndarray] | None = None
+
+    def accept(self, theta: float, vol) -> None:
+        """Record the converged step's angle (rad) and multipliers (``vol`` None: nothing)."""
+        if vol is not None:
+            self._before, self._last = self._last, (theta, vol.multiplier.copy())
+
+    def predict(self, theta: float, vol) -> None:
+        """Set ``vol``'s multipliers for the step to ``theta`` (rad), once two steps are known."""
+        if vol is None or not self.enabled or self._before is None:
+            return
+        (t1, l1), (t0, l0) = self._last, self._before
+        if t1 == t0:
+            return
+        vol.multiplier[:] = l1 + (l1 - l0) * ((theta - t1) / (t1 - t0))

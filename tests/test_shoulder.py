@@ -331,9 +331,10 @@ def test_every_step_converges_in_a_few_newton_iterations(study):
     5 retries before). With the muscles incompressible too (the default since 2026-11-29) the
     multipliers' updates take about as many iterations as the steps (coupled 240 + 215 in 38
     steps, 6.3; part 1 300 + 255 in 44, 6.8; none cut back) and the learnt order is right in
-    at least half the retries (coupled: 0 of 4 failed from the first start, part 1 2 of 6). The
-    coupled
-    steps' bone rotations are
+    at least half the retries (coupled: 0 of 4 failed from the first start, part 1 2 of 6). With
+    the multipliers predicted by the secant (``soft_tissue_multiplier_prediction``, the default
+    since) and the penalty raised where updates gain little: coupled 217 + 116 in 35 steps
+    (6.2), part 1 277 + 132 in 42 (6.6), none cut back. The coupled steps' bone rotations are
     finite (:mod:`shoulder_fem.engine.rigid_system.corotation`): with linear ones the coupled
     run took 310 iterations in 43 steps, two solves of 24 and 45 iterations among them, and at
     medium a cut-back at 11 deg (with them, 2 cut-backs there: 1.4 -> 2.8 and 12.5 -> 15

@@ -198,11 +198,14 @@ def remove_stale_partials(final: Path) -> list[Path]:
     A run killed outright (SIGKILL, out of memory, a node lost) cannot remove its
     ``<final>.partial-*`` folder. One whose owner (:data:`OWNER_NAME`) is a process of this
     host that no longer exists is removed; a folder of another host, or without an owner file,
-    is left alone. Returns the folders removed.
+    is left alone. A staging folder is made as ``.<final>.partial-*`` and renamed once its owner
+    is written: one of those left by a run killed before the rename is removed the same way.
+    Returns the folders removed.
     """
     removed = []
     host = socket.gethostname()
-    for staging in sorted(final.parent.glob(f"{final.name}.partial-*")):
+    hidden = final.parent.glob(f".{final.name}.partial-*")  # killed before their rename
+    for staging in sorted([*final.parent.glob(f"{final.name}.partial-*"), *hidden]):
         try:
             owner_host, pid = (staging / OWNER_NAME).read_text().split()
             dead = owner_host == host and not _alive(int(pid))
@@ -294,13 +297,18 @@ class OutputDir:
                 remove_stale_partials(self.final)
                 token = secrets.token_hex(4)
                 staging = self.final.parent / f"{self.final.name}.partial-{token}"
+                # made under a hidden name and renamed once its owner is written, so that a
+                # visible staging folder always names its owner (a run killed between the
+                # owner file's creation and its write left an empty one, never removed)
+                hidden = self.final.parent / f".{staging.name}"
                 try:
-                    staging.mkdir()
-                    (staging / "scratch").mkdir()
-                    (staging / OWNER_NAME).write_text(f"{socket.gethostname()} {os.getpid()}\n")
+                    hidden.mkdir()
+                    (hidden / "scratch").mkdir()
+                    (hidden / OWNER_NAME).write_text(f"{socket.gethostname()} {os.getpid()}\n")
+                    hidden.rename(staging)
                     reply = (token, None)
                 except OSError as exc:
-                    shutil.rmtree(staging, ignore_errors=True)
+                    shutil.rmtree(hidden, ignore_errors=True)
                     reply = (None, f"--out {self.final}: cannot create {staging}: {exc.strerror}")
         token, error = comm.bcast(reply, root=0)
         if error is not None:

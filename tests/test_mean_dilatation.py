@@ -101,6 +101,21 @@ def test_tangent_is_the_derivative_of_the_residual(pressure, pointwise):
     assert np.linalg.norm(fd - exact) <= 1e-7 * np.linalg.norm(exact)
 
 
+def _pulled_cube(ratio: float, pressure: str, pointwise=0.0):
+    """The unit cube (C10 = 1 MPa) on rollers at x, y, z = 0, its face x = 1 pulled along x by
+    ``pull`` (m): (u, dx, MeanDilatation, F, its NonlinearSolver, pull, the pulled face's dofs)."""
+    u, _, dx, law, md, F = _body(
+        MPI.COMM_WORLD, [1, 1, 1], [2, 2, 2], 1.0e6, ratio, True, pressure, pointwise
+    )
+    V = u.function_space
+    zero = PETSc.ScalarType(0)
+    bcs = [_component_bc(V, i, lambda x, i=i: np.isclose(x[i], 0.0), zero)[0] for i in range(3)]
+    pull = dolfinx.fem.Constant(V.mesh, zero)
+    bc, right = _component_bc(V, 0, lambda x: np.isclose(x[0], 1.0), pull)
+    solver = NonlinearSolver(F, u, bcs=[*bcs, bc], volumetric=md, options=_options(law))
+    return u, dx, md, F, solver, pull, right
+
+
 def _uniaxial(
     ratio: float,
     pressure: str,
@@ -117,13 +132,8 @@ def _uniaxial(
     """
     comm = MPI.COMM_WORLD
     c10 = 1.0e6
-    u, _, dx, law, md, F = _body(comm, [1, 1, 1], [2, 2, 2], c10, ratio, True, pressure, pointwise)
+    u, dx, md, F, solver, pull, right = _pulled_cube(ratio, pressure, pointwise)
     V = u.function_space
-    zero = PETSc.ScalarType(0)
-    bcs = [_component_bc(V, i, lambda x, i=i: np.isclose(x[i], 0.0), zero)[0] for i in range(3)]
-    pull = dolfinx.fem.Constant(V.mesh, zero)
-    bc, right = _component_bc(V, 0, lambda x: np.isclose(x[0], 1.0), pull)
-    solver = NonlinearSolver(F, u, bcs=[*bcs, bc], volumetric=md, options=_options(law))
     for t in (1 / 3, 2 / 3, 1.0):  # three load steps
         pull.value = (stretch - 1) * t
         solver.solve(step=f"stretch {t:.2f}")
@@ -191,14 +201,7 @@ def _stretch_error_after_the_steps_solve(predict: bool, stretch: float = 1.3) ->
     """Uniaxial stretch (kappa/mu = 10) in steps of 1/3, the volume kept to 1e-11 after each:
     the largest |ln θ| that the last step's own solve leaves, its multipliers the secant's
     prediction (``predict``) or the step before's."""
-    comm = MPI.COMM_WORLD
-    u, _, _, law, md, F = _body(comm, [1, 1, 1], [2, 2, 2], 1.0e6, 10.0, True, "P1")
-    V = u.function_space
-    zero = PETSc.ScalarType(0)
-    bcs = [_component_bc(V, i, lambda x, i=i: np.isclose(x[i], 0.0), zero)[0] for i in range(3)]
-    pull = dolfinx.fem.Constant(V.mesh, zero)
-    bcs.append(_component_bc(V, 0, lambda x: np.isclose(x[0], 1.0), pull)[0])
-    solver = NonlinearSolver(F, u, bcs=bcs, volumetric=md, options=_options(law))
+    _, _, md, _, solver, pull, _ = _pulled_cube(10.0, "P1")
     lagrange = MultiplierPredictor(predict)
     lagrange.accept(0.0, md)
     for t in (1 / 3, 2 / 3, 1.0):

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import functools
+
 from petsc4py import PETSc
 
 __all__ = ["line_search_maxstep", "options_used"]
 
 
+@functools.cache
 def _petsc_library():
-    """The loaded PETSc library through ctypes (for what petsc4py 3.18 does not expose), or None."""
+    """The loaded PETSc library through ctypes (for what petsc4py 3.18 does not expose), or None.
+
+    Found and opened once per process (every ``l2`` retry asks for the line search's step).
+    """
     import ctypes
     import glob
 

@@ -232,8 +232,7 @@ def correct_part1(
     log = StepLog()
     before = (system.stats.newton_iterations, system.stats.factorizations)
     stop = None
-    vol = part1.volumetric
-    keeping = Keeping.of(part1.model.params) if vol is not None else Keeping(0.0)
+    keeping = Keeping.of(part1.model.params)  # augment does nothing without volumetric terms
     try:
         with output_tolerance(system, CORRECTION_ATOL):  # these are outputs
             for k, by_body in enumerate(offsets):  # one per output state

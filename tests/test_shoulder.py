@@ -984,7 +984,14 @@ def test_two_ranks_give_the_serial_compliant_decoupling(comm_tmp):
     Lagrangian stops at the first multiplier update below the tolerance, and round-off (the
     two partitions, or one run after another in the same process) can move that update by one.
     At the default that moved the subscapularis force at 6 deg by 2.2e-5 (21 against 22
-    updates, measured), more than the 1e-5 compared; at 1e-6 three runs agreed within 3e-8."""
+    updates, measured), more than the 1e-5 compared; at 1e-6 three runs agreed within 3e-8.
+
+    The scapula's offset at 0 deg (6.0e-9 m, 1/1700 of its largest) is the response to the
+    unloaded joint's residual loads, which the solves leave at their absolute tolerance (1e-6
+    N at the outputs), not relative: two runs gave 6.01191e-9 and 6.01213e-9 m (3.8e-5 of it,
+    2.2e-8 of the series' largest; CI, stop 51). The offsets are compared to 1e-7 of their
+    largest in absolute terms (1e-6 N is a few 1e-7 of the few N the scapula carries at 6 deg),
+    the rest as everywhere."""
     scene = load_scene("shoulder-internal-rotation").with_overrides(
         [
             "final_angle=6deg",
@@ -997,7 +1004,8 @@ def test_two_ranks_give_the_serial_compliant_decoupling(comm_tmp):
     names = ["subscapularis_force", "max_pressure", "scapula_max_von_mises"]
     names += [f"uncorrected_{n}" for n in names]
     names += ["part1_correction_offset", "part1_correction_offset_humerus"]
-    par = _same_on_two_ranks(scene, "decoupled", names, comm_tmp)
+    floor = {name: 1e-7 for name in names if name.startswith("part1_correction_offset")}
+    par = _same_on_two_ranks(scene, "decoupled", names, comm_tmp, floor=floor)
     assert par.probes["transfer_equilibrium_residual"] < 1e-8
 
 
@@ -1030,9 +1038,13 @@ def test_two_ranks_coupled_past_a_widened_jacobian_pattern(comm_tmp):
     _same_on_two_ranks(scene, "coupled", names, comm_tmp)
 
 
-def _same_on_two_ranks(scene, method: str, names: list[str], comm_tmp):
+def _same_on_two_ranks(scene, method: str, names: list[str], comm_tmp, floor=None):
     """The run on both ranks and on rank 0 alone (COMM_SELF) give the same series ``names``
-    (to the solver tolerances) and the same final angle; the parallel result."""
+    (to the solver tolerances) and the same final angle; the parallel result.
+
+    ``floor`` maps a name to the absolute tolerance of its series as a fraction of its largest
+    value (1e-9 unless given): for a series whose small values are set by a solver's absolute
+    tolerance."""
     world = MPI.COMM_WORLD
     if world.size == 1:
         pytest.skip("compares a parallel run with a serial one: run under mpirun -n 2")
@@ -1051,7 +1063,8 @@ def _same_on_two_ranks(scene, method: str, names: list[str], comm_tmp):
             continue
         # an incompressible body's volume change is round-off about 0 (measured 1e-15 at 0
         # deg, 1e-7 at 2 deg, the two runs 5e-15 apart): compared in absolute terms
-        atol = 1e-12 if name.endswith("_volume_change") else 1e-9 * np.abs(b).max()
+        share = (floor or {}).get(name, 1e-9)
+        atol = 1e-12 if name.endswith("_volume_change") else share * np.abs(b).max()
         assert np.allclose(a, b, rtol=1e-5, atol=atol), (name, a, b)
     reached = ser["probes"]["final_angle_deg"]
     assert par.probes["final_angle_deg"] == pytest.approx(reached, abs=1e-6)

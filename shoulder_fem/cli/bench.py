@@ -26,7 +26,7 @@ BENCH_NAME = "bench.json"
 
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
-    """SHA-256 of the package's Python sources and scene files (what decides the results).
+    """SHA-256 of the package's Python and C sources and scene files (what decides the results).
 
     The packages are located, not imported (``forms`` and ``meshes`` live in folders of their
     own in a source checkout).
@@ -37,7 +37,7 @@ def code_digest() -> str:
     for name in ("shoulder_fem", "shoulder_fem.forms", "shoulder_fem.meshes"):
         root = Path(importlib.util.find_spec(name).origin).parent
         for path in sorted(root.rglob("*")):
-            if path.suffix in (".py", ".toml") and "__pycache__" not in path.parts:
+            if path.suffix in (".py", ".toml", ".c") and "__pycache__" not in path.parts:
                 digest.update(str(path.relative_to(root)).encode())
                 digest.update(path.read_bytes())
     return digest.hexdigest()

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import functools
+from collections.abc import Iterator
 
+import numpy as np
 from petsc4py import PETSc
 
-__all__ = ["line_search_maxstep", "options_used"]
+__all__ = ["PETSC_INT64", "aij_blocks", "line_search_maxstep", "nonzero_key", "options_used"]
 
 
 @functools.cache
@@ -15,7 +19,6 @@ def _petsc_library():
 
     Found and opened once per process (every ``l2`` retry asks for the line search's step).
     """
-    import ctypes
     import glob
 
     import petsc4py
@@ -38,8 +41,6 @@ def line_search_maxstep(snes: PETSc.SNES) -> float | None:
     ``SNESLineSearchGetTolerances`` through ctypes: petsc4py 3.18 has no SNESLineSearch. None
     when the library cannot be asked.
     """
-    import ctypes
-
     lib = _petsc_library()
     if lib is None or not hasattr(lib, "SNESLineSearchGetTolerances"):
         return None
@@ -55,8 +56,6 @@ def line_search_maxstep(snes: PETSc.SNES) -> float | None:
 
 def options_used():
     """``PetscOptionsUsed`` of the loaded PETSc library (petsc4py 3.18 does not expose it)."""
-    import ctypes
-
     lib = _petsc_library()
     if lib is None or not hasattr(lib, "PetscOptionsUsed"):
         return None
@@ -67,3 +66,84 @@ def options_used():
         return query(None, name.encode(), ctypes.byref(flag)) == 0 and bool(flag.value)
 
     return used
+
+
+def nonzero_key(mat: PETSc.Mat) -> tuple[int, int] | None:
+    """``mat``'s PETSc object id and nonzero state, or None when the library cannot be asked.
+
+    The id is never reused within a process; the state takes a new value whenever the
+    matrix's pattern changes.
+    """
+    lib = _petsc_library()
+    if lib is None or not hasattr(lib, "MatGetNonzeroState"):
+        return None
+    ident, state = ctypes.c_int64(), ctypes.c_int64()
+    handle = ctypes.c_void_p(mat.handle)
+    if lib.PetscObjectGetId(handle, ctypes.byref(ident)) != 0:
+        return None
+    if lib.MatGetNonzeroState(handle, ctypes.byref(state)) != 0:
+        return None
+    return int(ident.value), int(state.value)
+
+
+@contextlib.contextmanager
+def aij_blocks(mat: PETSc.Mat, write: bool) -> Iterator[list[tuple[int, int, int, int, int]]]:
+    """The local blocks of an assembled AIJ matrix, as raw CSR arrays (no copies).
+
+    One block for SeqAIJ; the diagonal and the off-diagonal block for MPIAIJ. Each is (rows,
+    address of the row offsets, of the column numbers, of the values, of the columns' global
+    ids or 0 where the local numbers are the global order's: the off-diagonal block's own
+    numbering is the one that has them). ``write``: the values may be changed
+    (``MatSeqAIJGetArray``, else ``...GetArrayRead``). Everything is given back on leaving.
+    Raises ``OSError`` when the library cannot be asked.
+    """
+    lib = _petsc_library()
+    if lib is None or not hasattr(lib, "MatMPIAIJGetSeqAIJ"):
+        raise OSError("the PETSc library cannot be asked for a matrix's arrays")
+    handle = ctypes.c_void_p(mat.handle)
+    if mat.getType() == PETSc.Mat.Type.MPIAIJ:
+        diag, off, colmap = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
+        code = lib.MatMPIAIJGetSeqAIJ(
+            handle, ctypes.byref(diag), ctypes.byref(off), ctypes.byref(colmap)
+        )
+        if code != 0:
+            raise OSError("MatMPIAIJGetSeqAIJ failed")
+        blocks = [(diag, 0), (off, colmap.value or 0)]
+    else:
+        blocks = [(handle, 0)]
+    get, give = (
+        (lib.MatSeqAIJGetArray, lib.MatSeqAIJRestoreArray)
+        if write
+        else (lib.MatSeqAIJGetArrayRead, lib.MatSeqAIJRestoreArrayRead)
+    )
+    taken, out = [], []
+    try:
+        for block, colmap_at in blocks:
+            n, done = ctypes.c_int64(0) if PETSC_INT64 else ctypes.c_int32(0), ctypes.c_int(0)
+            ia, ja, values = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
+            # shift 0, not symmetric, not inode-compressed: the matrix's own arrays
+            code = lib.MatGetRowIJ(
+                block, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
+                ctypes.byref(done),
+            )  # fmt: skip
+            if code != 0 or not done.value:
+                raise OSError("MatGetRowIJ failed")
+            taken.append((lib.MatRestoreRowIJ, block, n, ia, ja, done))
+            if get(block, ctypes.byref(values)) != 0:
+                raise OSError("MatSeqAIJGetArray failed")
+            taken.append((give, block, values))
+            out.append((int(n.value), ia.value or 0, ja.value or 0, values.value or 0, colmap_at))
+        yield out
+    finally:
+        for entry in reversed(taken):
+            if len(entry) == 3:
+                give_back, block, values = entry
+                give_back(block, ctypes.byref(values))
+            else:
+                restore, block, n, ia, ja, done = entry
+                restore(block, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
+                        ctypes.byref(done))  # fmt: skip
+
+
+#: Whether PETSc's integers are 64-bit here (Debian's build: 32).
+PETSC_INT64 = np.dtype(PETSc.IntType).itemsize == 8

@@ -227,11 +227,14 @@ def add_to_pattern(
     merged: np.ndarray,
     comm: MPI.Comm,
     keys: np.ndarray | None = None,
+    add=None,
 ) -> np.ndarray:
     """A += K, widening A's pattern only when K has entries never merged before (collective).
 
     The widening is one explicit merge (never PETSc reallocating entry by entry); A keeps its
-    near-nullspace (the merge replaces A's data and header). Returns the keys merged so far.
+    near-nullspace (the merge replaces A's data and header). Otherwise ``add(A, K)`` (e.g. a
+    :class:`~shoulder_fem.engine.subset_add.SubsetAdd`; default ``MatAXPY``). Returns the keys
+    merged so far.
     """
     keys = local_keys(K) if keys is None else keys
     new = np.setdiff1d(keys, merged)
@@ -241,5 +244,8 @@ def add_to_pattern(
         if near.handle:  # petsc4py: 0 when there is none
             A.setNearNullSpace(near)
         return np.union1d(merged, keys)
-    A.axpy(1.0, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    if add is None:
+        A.axpy(1.0, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    else:
+        add(A, K)
     return merged

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CFLAGS", "Kernel", "load"]
+__all__ = ["CFLAGS", "Kernel", "build_library", "load"]
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ def _cache_dir() -> Path:
         return Path(tempfile.gettempdir())
 
 
-def _build(source: Path) -> Path:
+def build_library(source: Path) -> Path:
     """The shared library of ``source``, compiled once per source digest and flags."""
     code = source.read_bytes()
     digest = hashlib.sha1(code + " ".join(CFLAGS).encode()).hexdigest()[:16]
@@ -238,7 +238,7 @@ def load() -> Kernel | None:
         return None
     if "c" not in _loaded:
         try:
-            _loaded["c"] = Kernel(_build(_SOURCE))
+            _loaded["c"] = Kernel(build_library(_SOURCE))
         except (OSError, ImportError) as err:
             log.warning(
                 "contact: the compiled segment kernel is not available (%s); "

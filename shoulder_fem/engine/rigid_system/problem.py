@@ -34,6 +34,7 @@ from shoulder_fem.engine.so3 import exp_so3, log_so3
 from shoulder_fem.engine.solver import SolveStats
 from shoulder_fem.engine.sparse import with_entries
 from shoulder_fem.engine.springs import Spring
+from shoulder_fem.engine.subset_add import SubsetAdd
 
 __all__ = [
     "STALE_FRACTION",
@@ -118,6 +119,7 @@ class ContactProduct:
         self.C: PETSc.Mat | None = None
         #: The entries merged into the Jacobian's pattern so far (:func:`add_to_pattern`).
         self.keys = np.zeros(0, dtype=np.int64)
+        self.sum = SubsetAdd()  # J += C while both patterns hold
 
     def add(
         self, J: PETSc.Mat, fe: DeformablePart, P: PETSc.Mat, stats: SolveStats, tangent=None
@@ -133,12 +135,12 @@ class ContactProduct:
         with timed(stats, "reduction_s"):
             if K is self.K:  # the last one's pattern: so is the product's
                 K.PtAP(P, self.C)
-                J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+                self.sum(J, self.C)
                 return
             self.destroy()
             with ptap_algorithm(self.comm):
                 self.K, self.C = K, K.PtAP(P)
-            self.keys = add_to_pattern(J, self.C, self.keys, self.comm)
+            self.keys = add_to_pattern(J, self.C, self.keys, self.comm, add=self.sum)
 
     def destroy(self) -> None:
         """Free the matrices."""
@@ -201,6 +203,7 @@ class ReducedProblem:
         #: The prolongation P and the product Pᵀ K P (FE only).
         self.P: PETSc.Mat | None = None
         self.C: PETSc.Mat | None = None
+        self._fe_sum = SubsetAdd()  # J += C while both patterns hold
         if fe is not None:
             self.P = layout.create_prolongation(bodies, self.phi, linear_ties)
         #: J's near-nullspace (attached to every J built), or None.
@@ -411,17 +414,16 @@ class ReducedProblem:
 
     def _add_fe_tangent(self, J: PETSc.Mat, f_current: bool) -> None:
         """Assemble F (unless ``f_current``) and K, add Pᵀ K P and the contact's Pᵀ K_c P."""
-        fe = self.fe
         with timed(self.stats, "fe_assembly_s"):
             if not f_current:
-                fe.assemble_residual()
-            fe.assemble_tangent()
+                self.fe.assemble_residual()
+            self.fe.assemble_tangent()
         with timed(self.stats, "reduction_s"):
             self.layout.fill_prolongation(self.P, self.bodies, self.phi, self.linear_ties)
-            fe.K.PtAP(self.P, self.C)
-            J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        if fe.contact is not None:
-            self.contact.add(J, fe, self.P, self.stats)
+            self.fe.K.PtAP(self.P, self.C)
+            self._fe_sum(J, self.C)
+        if self.fe.contact is not None:
+            self.contact.add(J, self.fe, self.P, self.stats)
         add_volumetric_tangent(self, J)
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------

@@ -116,33 +116,21 @@ def aij_blocks(mat: PETSc.Mat, write: bool) -> Iterator[list[tuple[int, int, int
         if write
         else (lib.MatSeqAIJGetArrayRead, lib.MatSeqAIJRestoreArrayRead)
     )
-    taken, out = [], []
-    try:
+    with contextlib.ExitStack() as stack:  # each array given back, last taken first
+        out = []
         for block, colmap_at in blocks:
             n, done = ctypes.c_int64(0) if PETSC_INT64 else ctypes.c_int32(0), ctypes.c_int(0)
             ia, ja, values = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
             # shift 0, not symmetric, not inode-compressed: the matrix's own arrays
-            code = lib.MatGetRowIJ(
-                block, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
-                ctypes.byref(done),
-            )  # fmt: skip
-            if code != 0 or not done.value:
+            row_ij = (block, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja))
+            if lib.MatGetRowIJ(*row_ij, ctypes.byref(done)) != 0 or not done.value:
                 raise OSError("MatGetRowIJ failed")
-            taken.append((lib.MatRestoreRowIJ, block, n, ia, ja, done))
+            stack.callback(lib.MatRestoreRowIJ, *row_ij, ctypes.byref(done))
             if get(block, ctypes.byref(values)) != 0:
                 raise OSError("MatSeqAIJGetArray failed")
-            taken.append((give, block, values))
+            stack.callback(give, block, ctypes.byref(values))
             out.append((int(n.value), ia.value or 0, ja.value or 0, values.value or 0, colmap_at))
         yield out
-    finally:
-        for entry in reversed(taken):
-            if len(entry) == 3:
-                give_back, block, values = entry
-                give_back(block, ctypes.byref(values))
-            else:
-                restore, block, n, ia, ja, done = entry
-                restore(block, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
-                        ctypes.byref(done))  # fmt: skip
 
 
 #: Whether PETSc's integers are 64-bit here (Debian's build: 32).

@@ -15,6 +15,7 @@ the run's peak memory from 385 to 430 MB (the positions and the keys of J's entr
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 
@@ -37,29 +38,25 @@ long sf_csr_add64(long m, const int64_t *ji, const int64_t *jj, double *ja, cons
                   const int64_t *cj, const double *ca, const int64_t *jmap,
                   const int64_t *cmap, int add);
 """
-_kernel: list = []  # [(ffi, function, int type)] once loaded; [None] when it cannot be
 
 
+@functools.cache
 def _load():
     """The compiled walk (ffi, function, C integer type), or None (no compiler: warned once)."""
-    if not _kernel:
-        try:
-            import cffi
+    try:
+        import cffi
 
-            from shoulder_fem.engine.contact.kernel import build_library
+        from shoulder_fem.engine.contact.kernel import build_library
 
-            ffi = cffi.FFI()
-            ffi.cdef(_CDEF)
-            lib = ffi.dlopen(str(build_library(_SOURCE)))
-            _kernel.append(
-                (ffi, lib.sf_csr_add64, "int64_t *")
-                if PETSC_INT64
-                else (ffi, lib.sf_csr_add32, "int32_t *")
-            )
-        except (OSError, ImportError) as err:
-            log.warning("the compiled J += C is not available (%s): PETSc's MatAXPY instead", err)
-            _kernel.append(None)
-    return _kernel[0]
+        ffi = cffi.FFI()
+        ffi.cdef(_CDEF)
+        lib = ffi.dlopen(str(build_library(_SOURCE)))
+    except (OSError, ImportError) as err:
+        log.warning("the compiled J += C is not available (%s): PETSc's MatAXPY instead", err)
+        return None
+    if PETSC_INT64:
+        return ffi, lib.sf_csr_add64, "int64_t *"
+    return ffi, lib.sf_csr_add32, "int32_t *"
 
 
 class SubsetAdd:

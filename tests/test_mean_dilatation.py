@@ -346,3 +346,52 @@ def test_a_system_tangent_follows_the_bulk_modulus_of_a_continuation():
     assert expected.norm() <= 1e-10 * fe.K.norm()
     system.destroy()
     md.destroy()
+
+
+def _prolongation(V, comm, rng) -> PETSc.Mat:
+    """u's DOFs x (u's DOFs + 6): the identity, and 6 columns on a third of the rows (a tie)."""
+    imap = V.dofmap.index_map
+    n = imap.size_local * V.dofmap.index_map_bs
+    r0 = comm.scan(n) - n
+    extra = 6 if comm.rank == 0 else 0
+    P = PETSc.Mat().createAIJ(((n, None), (n + extra, None)), comm=comm)
+    P.setPreallocationNNZ(([7] * n, [7] * n))
+    n_glob = comm.allreduce(n)
+    tied = np.arange(r0, r0 + n)[::3]
+    for row in range(r0, r0 + n):
+        P.setValue(row, row, 1.0)
+    cols = np.arange(n_glob, n_glob + 6, dtype=PETSc.IntType)
+    for row in tied:
+        P.setValues([row], cols, rng.uniform(-1, 1, 6))
+    P.assemble()
+    return P
+
+
+@pytest.mark.mpi
+def test_the_reduced_volumetric_tangent_is_the_product_with_the_prolongation():
+    """(B P)ᵀ D (B P), as the rigid system forms it, is Pᵀ (Bᵀ D B) P to round-off: at a
+    deformed state, and again after the state and P's values change (both refilled)."""
+    comm = MPI.COMM_WORLD
+    u, w, dx, law, md, F = _body(comm, [1.0, 1.0, 1.0], [3, 3, 3], 1e6, 50.0, pressure="P1")
+    rng = np.random.default_rng(comm.rank)
+    P = _prolongation(u.function_space, comm, rng)
+    for _ in range(2):
+        u.x.array[:] = rng.uniform(-0.02, 0.02, u.x.array.size)
+        u.x.scatter_forward()
+        md.update()
+        n_glob = P.getSize()[1] - 6
+        cols = np.arange(n_glob, n_glob + 6, dtype=PETSc.IntType)
+        for row in range(*P.getOwnershipRange())[::3]:
+            P.setValues([row], cols, rng.uniform(-1, 1, 6))
+        P.assemble()
+        expected = md.tangent_matrix().PtAP(P)
+        reduced = md.reduced_tangent(P)
+        assert reduced.getSize() == expected.getSize()
+        diff = expected.copy()
+        diff.axpy(-1.0, reduced, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        assert expected.norm() > 0
+        assert diff.norm() <= 1e-13 * expected.norm()
+        expected.destroy()
+        diff.destroy()
+    P.destroy()
+    md.destroy()

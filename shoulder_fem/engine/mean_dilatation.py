@@ -206,6 +206,16 @@ class MeanDilatation:
         self._PtBtDBP = self._btdb(self._BP, self._PtBtDBP)
         return self._PtBtDBP
 
+    def reduced_product(self) -> PETSc.Mat:
+        """B P of the last :meth:`reduced_tangent` (owned here)."""
+        if self._BP is None:
+            raise RuntimeError("MeanDilatation: reduced_product before reduced_tangent")
+        return self._BP
+
+    def stiffness_diagonal(self) -> np.ndarray:
+        """D's diagonal: U''(θ_a)/|a| of each owned pressure DOF at the last update (0 outside)."""
+        return self._d
+
     def _assemble_b(self) -> PETSc.Mat:
         B = self._B
         B.zeroEntries()

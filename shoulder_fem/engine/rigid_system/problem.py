@@ -235,6 +235,8 @@ class ReducedProblem:
         self.comm = layout.comm
         # the products of the contact's tangent and of a P1 pressure's volumetric tangent
         self.contact, self.volumetric = ContactProduct(self.comm), VolumetricProduct(self.comm)
+        #: J₀ and the bordered LU of the Newton steps (:mod:`~.uncondensed`), or None.
+        self.uncondensed = None
         self.R0 = [b.rotation.copy() for b in bodies]
         self.phi = np.zeros((len(bodies), 3))
         self.x = PETSc.Vec().createMPI((layout.n_local, layout.n_global), comm=self.comm)
@@ -438,14 +440,9 @@ class ReducedProblem:
         if self.fe is not None:
             self._add_fe_tangent(J, f_current)
         terms = self.rigid_terms(with_tangent=True)
-        if self.comm.rank == 0 and len(self.bodies):
-            rigid = self.layout.rigid_range(len(self.bodies))
-            J.setValues(rigid, rigid, terms.tangent.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
-        self.layout.add_node_blocks(J, self.ends, terms.node_tangent, terms.T)
-        J.assemble()
-        J.zeroRowsColumns(self.dirichlet_rows(), 1.0)
-        if self.control is not None:
-            set_control_rows(J, self.control, self.layout, self.P, self._control_work, self.phi)
+        finish_jacobian(self, J, terms)
+        if self.uncondensed is not None:
+            self.uncondensed.refresh(terms)
         self.stats.factorizations += 1
 
     def _f_current(self, x: PETSc.Vec) -> bool:
@@ -490,8 +487,26 @@ class ReducedProblem:
             objs.append(self.near_nullspace)
         if self.fe is not None:
             objs += [self.P, self.C]
-        for obj in (*objs, self.contact, self.volumetric):
-            obj.destroy()
+        for obj in (*objs, self.contact, self.volumetric, self.uncondensed):
+            if obj is not None:
+                obj.destroy()
+
+
+def finish_jacobian(problem: ReducedProblem, J: PETSc.Mat, terms: RigidTerms) -> None:
+    """J += the rigid bodies' and springs' tangents; then the special rows (collective).
+
+    The prescribed DOFs' rows and columns become the identity, the controlled rows the
+    control's.
+    """
+    if problem.comm.rank == 0 and len(problem.bodies):
+        rigid = problem.layout.rigid_range(len(problem.bodies))
+        J.setValues(rigid, rigid, terms.tangent.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+    problem.layout.add_node_blocks(J, problem.ends, terms.node_tangent, terms.T)
+    J.assemble()
+    J.zeroRowsColumns(problem.dirichlet_rows(), 1.0)
+    if problem.control is not None:
+        work = problem._control_work
+        set_control_rows(J, problem.control, problem.layout, problem.P, work, problem.phi)
 
 
 def add_volumetric_tangent(problem: ReducedProblem, J: PETSc.Mat) -> None:

@@ -34,6 +34,7 @@ from shoulder_fem.engine.rigid_system.problem import (
     timed,
 )
 from shoulder_fem.engine.rigid_system.reports import SystemReports
+from shoulder_fem.engine.rigid_system.uncondensed import UncondensedLU, UncondensedPC
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     default_snes_options,
@@ -51,13 +52,18 @@ __all__ = ["RigidSystem", "create_snes", "run_snes"]
 
 
 def create_snes(
-    problem: ReducedProblem, guard: TrialGuard, prefix: str, options: dict | None
+    problem: ReducedProblem,
+    guard: TrialGuard,
+    prefix: str,
+    options: dict | None,
+    uncondensed: bool = False,
 ) -> tuple[PETSc.SNES, str]:
     """A SNES on ``problem``'s residual and Jacobian, options under ``prefix``; its line search.
 
     ``options`` (PETSc options) go over :func:`shoulder_fem.engine.solver.default_snes_options`.
     Every Newton step passes ``guard`` (the line search's pre-check), which hands the residual
     it evaluated at the accepted trial to the line search (it is the SNES function).
+    ``uncondensed``: the preconditioner is :func:`use_uncondensed`'s.
     """
     # Rotating a tied face by a finite angle makes the first Newton iterate of a nearly
     # incompressible body (linearised rotation of the free nodes) far worse than the start:
@@ -74,7 +80,30 @@ def create_snes(
     snes.setAttr("stagnation_test", stagnation)
     snes.setLineSearchPreCheck(guard)
     snes.setConvergenceHistory(length=200, reset=True)
+    if uncondensed:
+        use_uncondensed(snes, problem, prefix)
     return snes, str(opts["snes_linesearch_type"])
+
+
+def use_uncondensed(snes: PETSc.SNES, problem: ReducedProblem, prefix: str) -> None:
+    """Make ``snes``'s preconditioner the bordered LU of :mod:`~.uncondensed`.
+
+    Raises:
+        ValueError: No P1 volumetric terms, or a linear solver other than ``preonly`` + LU.
+    """
+    vol = problem.fe.volumetric if problem.fe is not None else None
+    if vol is None or vol.cell_local:
+        raise ValueError(f"{prefix}: uncondensed needs condensed P1 volumetric terms")
+    ksp = snes.getKSP()
+    if ksp.getType() != PETSc.KSP.Type.PREONLY or ksp.getPC().getType() != PETSc.PC.Type.LU:
+        raise ValueError(
+            f"{prefix}: uncondensed replaces the LU of preonly + lu, not "
+            f"{ksp.getType()} + {ksp.getPC().getType()}"
+        )
+    problem.uncondensed = lu = UncondensedLU(problem, prefix)
+    pc = ksp.getPC()
+    pc.setType(PETSc.PC.Type.PYTHON)
+    pc.setPythonContext(UncondensedPC(lu))
 
 
 def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, prefix: str) -> int:
@@ -163,6 +192,8 @@ class RigidSystem(SystemReports, ControlledSystem, OffsetTies, SplitFields):
             a finite rotation (:mod:`~.corotation`); the converged states are unchanged.
         volumetric: Condensed volumetric terms of ``u`` whose residual is in ``residual``
             (:class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`).
+        uncondensed: The Newton steps of a P1 ``volumetric`` by the LU of the uncondensed
+            system (:mod:`~.uncondensed`); needs ``preonly`` + ``lu``.
 
     Raises:
         ValueError: Duplicate body names, a tie to an unknown body or surface, an empty
@@ -195,6 +226,7 @@ class RigidSystem(SystemReports, ControlledSystem, OffsetTies, SplitFields):
         near_nullspace: bool = False,
         rigid_regions: Sequence[np.ndarray] = (),
         volumetric=None,
+        uncondensed: bool = False,
     ) -> None:
         self.bodies = list(bodies)
         self.linear_ties = bool(linear_ties)
@@ -224,11 +256,8 @@ class RigidSystem(SystemReports, ControlledSystem, OffsetTies, SplitFields):
         layout = ReducedLayout(self.comm, self.bodies, self.ties, V, surfaces, fixed)
         fe_args = (u, residual, jacobian, form_compiler_params, contact, layout, volumetric)
         self._fe = DeformablePart(*fe_args) if u is not None else None
-        ends = [
-            layout.spring_end(s, i, self._index, self.deformable)
-            for s in self.springs
-            for i in (0, 1)
-        ]
+        where = self._index, self.deformable
+        ends = [layout.spring_end(s, i, *where) for s in self.springs for i in (0, 1)]
         self.stats = RigidSolveStats()
         fe_parts = (self._fe, self._step, self.stats, self.linear_ties)
         self._problem = problem = ReducedProblem(
@@ -244,7 +273,8 @@ class RigidSystem(SystemReports, ControlledSystem, OffsetTies, SplitFields):
         fix = self.rigid_regions.precheck if self.rigid_regions else None
         checks = (admissible, self.stats, self.comm)
         self._guard = TrialGuard(problem.update_state, problem.residual, *checks, correct=fix)
-        self.snes, self._linesearch = create_snes(problem, self._guard, self.prefix, options)
+        snes_args = self._guard, self.prefix, options, uncondensed
+        self.snes, self._linesearch = create_snes(problem, *snes_args)
         #: Whether every Newton iteration evaluates J (not a lagged, chord Jacobian): only then
         #: may J be rebuilt between solves (:func:`~.problem.rebuild_jacobian`), since a lagged
         #: factorization would meet the new matrix unfilled.

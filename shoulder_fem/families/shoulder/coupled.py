@@ -23,6 +23,7 @@ from shoulder_fem.families.shoulder.interactions import (
     spring_layout,
     spring_plates,
     surfaces,
+    uncondensed,
 )
 from shoulder_fem.families.shoulder.measures import Probe, VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel, displacement
@@ -80,6 +81,7 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
         volumetric=volumetric,
         rigid_regions=bones,
         near_nullspace=split,
+        uncondensed=not split and uncondensed(p, volumetric),
     )
     if split:  # the bones and their plates, the soft tissues, the actuator's control (border)
         system.split_fields(np.concatenate(bones), [b.name for b in bodies if b is not actuator])

@@ -28,6 +28,7 @@ from shoulder_fem.families.shoulder.interactions import (
     soft_tissue_residual,
     spring_layout,
     surfaces,
+    uncondensed,
 )
 from shoulder_fem.families.shoulder.load_map import load_map, surface_triangles
 from shoulder_fem.families.shoulder.measures import Probe
@@ -322,6 +323,7 @@ class Part1:
             contact=contact,
             admissible=check,
             volumetric=self.volumetric,
+            uncondensed=uncondensed(p, self.volumetric),
         )
         self.transfer = Transfer(reference=scapula_ref)
         self.record = _TransferRecorder(V, ft, system, (scapula, humerus), self.transfer)

@@ -304,6 +304,16 @@ def soft_tissue_residual(
     return F + volumetric.residual(w), volumetric
 
 
+def uncondensed(params: ShoulderParameters, volumetric) -> bool:
+    """Whether the Newton steps take the bordered LU (``soft_tissue_linear_solve``).
+
+    Only for condensed P1 pressures (P0's terms lie within each cell's own couplings).
+    """
+    if volumetric is None or volumetric.cell_local:
+        return False
+    return params.soft_tissue_linear_solve == "uncondensed"
+
+
 def muscle_forms(u, w, dx, params: ShoulderParameters, volumetric=None) -> dict:
     """Each muscle's internal virtual power, compiled, by muscle name.
 

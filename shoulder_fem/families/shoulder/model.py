@@ -67,6 +67,7 @@ class ShoulderParameters:
     soft_tissue_formulation: str
     soft_tissue_bulk_ratio: float
     soft_tissue_pressure: str
+    soft_tissue_linear_solve: str
     soft_tissue_pointwise_bulk_ratio: float
     soft_tissue_volume_tolerance: float
     soft_tissue_penalty_raise: float

@@ -122,9 +122,10 @@ class UncondensedLU:
             self._G["T"].transpose(self._G["Tt"])
         d = G.createVecLeft()
         diagonal = vol.stiffness_diagonal()
-        soft = diagonal > 0
+        # d < 0 (θ > e) is still exact: only d = 0 (no tissue, an empty row of G) has no inverse
+        held = diagonal != 0
         d.array[:] = -1.0
-        d.array[soft] = -1.0 / diagonal[soft]
+        d.array[held] = -1.0 / diagonal[held]
         if self._D is None:
             self._D = PETSc.Mat().createAIJ(
                 (G.getSizes()[0], G.getSizes()[0]), nnz=(1, 0), comm=self.comm

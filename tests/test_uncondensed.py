@@ -55,13 +55,18 @@ def test_the_bordered_lu_solves_the_condensed_jacobian(comm_tmp, monkeypatch):
     bordered = api.run(scene, "decoupled", "coarse", comm_tmp / "bordered")
     monkeypatch.setattr(uncondensed.UncondensedLU, "solve", real)
     assert seen["solves"] > 40
+    # J x = b is the equation the condensed LU solves exactly: its residual, not a stored
+    # number (measured 1.9e-11 before the refinement; the LU of J itself leaves about 1e-13)
     assert seen["worst"] <= 1e-9, seen
+    # the other factorization of the same state: MUMPS's own count for the LU of J
+    # (measured 0.60M against 1.43M entries, 0.42)
     ours, condensed_lu = seen["entries"]
     assert ours < 0.6 * condensed_lu, seen
 
     plain = scene.with_overrides(["soft_tissue_linear_solve=condensed"])
     condensed = api.run(plain, "decoupled", "coarse", comm_tmp / "condensed")
     assert bordered.status == condensed.status == "ok"
+    # the other method of the same Newton steps: the LU of the condensed J
     for name in SERIES:
         a = np.array(bordered.data["series"][name]["y"])
         b = np.array(condensed.data["series"][name]["y"])

@@ -221,6 +221,17 @@ def local_keys(K: PETSc.Mat) -> np.ndarray:
     return rows.astype(np.int64) * K.getSize()[1] + cols.astype(np.int64)
 
 
+def widen(A: PETSc.Mat, K: PETSc.Mat) -> None:
+    """A += K, A's pattern widened to hold K's: one explicit merge (collective).
+
+    A keeps its near-nullspace (the merge replaces A's data and header).
+    """
+    near = A.getNearNullSpace()
+    A.axpy(1.0, K, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+    if near.handle:  # petsc4py: 0 when there is none
+        A.setNearNullSpace(near)
+
+
 def add_to_pattern(
     A: PETSc.Mat,
     K: PETSc.Mat,
@@ -239,10 +250,7 @@ def add_to_pattern(
     keys = local_keys(K) if keys is None else keys
     new = np.setdiff1d(keys, merged)
     if comm.allreduce(len(new), op=MPI.SUM) > 0:
-        near = A.getNearNullSpace()
-        A.axpy(1.0, K, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-        if near.handle:  # petsc4py: 0 when there is none
-            A.setNearNullSpace(near)
+        widen(A, K)
         return np.union1d(merged, keys)
     if add is None:
         A.axpy(1.0, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)

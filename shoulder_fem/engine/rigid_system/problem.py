@@ -182,10 +182,9 @@ class VolumetricProduct:
 
     def merge(self, J: PETSc.Mat) -> None:
         """J += C, J's pattern widened to hold C's (one merge; J keeps its near-nullspace)."""
-        near = J.getNearNullSpace()
-        J.axpy(1.0, self.C, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-        if near.handle:  # petsc4py: 0 when there is none
-            J.setNearNullSpace(near)
+        from shoulder_fem.engine.contact.jacobian import widen
+
+        widen(J, self.C)
 
     def destroy(self) -> None:
         """Let go of C (the MeanDilatation frees it)."""

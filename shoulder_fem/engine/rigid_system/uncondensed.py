@@ -69,8 +69,6 @@ class UncondensedLU:
         self.ksp_prefix = f"{prefix}uncondensed_"
         self.ksp.setOptionsPrefix(self.ksp_prefix)
         set_from_options(self.ksp, direct_solver_options() | REFINEMENT)
-        #: A's numeric factorizations.
-        self.factorizations = 0
 
     # ---- J₀ and the blocks, at each Jacobian ------------------------------------------------
     def refresh(self, terms) -> None:
@@ -147,7 +145,6 @@ class UncondensedLU:
             self._nest.convert(PETSc.Mat.Type.AIJ, self.A)
         self.ksp.setOperators(self.A, self.A)
         self.ksp.setUp()
-        self.factorizations += 1
 
     def _new_bordered(self) -> None:
         for obj in (self._nest, self.A, *(self._vecs or ())):

@@ -30,7 +30,8 @@ Newton iterations and CPU time. Writes ``model_changes.json`` and ``model_change
 coupled runs; the decoupled ones are in the JSON). Every figure is measured; it asserts nothing.
 
 An existing ``model_changes.json`` in ``--out`` is updated, not replaced: the levels and
-variants run now replace their entries, the others keep theirs. Each entry names the commit
+variants run now replace their entries, the others keep theirs. It is written after every
+variant, so an interrupted sweep keeps the variants it finished. Each entry names the commit
 and the date it was measured on (``measured``), so a partial rerun (``--levels coarse``) says
 which entries are older.
 """
@@ -191,21 +192,21 @@ def main() -> None:
         plot(data, args.out / "model_changes.png")
         return
     measured = {"commit": source_commit(), "date": datetime.date.today().isoformat()}
+    args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="model-changes-") as tmp:
         for level in args.levels:
-            cases = {}
             for case in args.variants:
-                cases[case] = {
+                runs = {
                     m: {
                         **one(level, VARIANTS[case], m, Path(tmp) / f"{level}-{case}-{m}"),
                         "measured": measured,
                     }
                     for m in METHODS
                 }
-                print(level, case, {m: cases[case][m]["status"] for m in METHODS}, flush=True)
-            data["levels"].setdefault(level, {}).update(cases)
-    args.out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(args.out / "model_changes.json", data)
+                print(level, case, {m: runs[m]["status"] for m in METHODS}, flush=True)
+                # written after every variant: an interrupted sweep keeps what it finished
+                data["levels"].setdefault(level, {})[case] = runs
+                atomic_write_json(args.out / "model_changes.json", data)
     plot(data, args.out / "model_changes.png")
 
 

@@ -118,7 +118,7 @@ class MeanDilatation:
         self.pressure = dolfinx.fem.Function(Q, name="pressure")
         self._B = fem_petsc.create_matrix(self._b_form)
         self._BtDB: PETSc.Mat | None = None
-        #: B P and Pᵀ Bᵀ D B P of :meth:`reduced_tangent`.
+        #: B P (:meth:`reduced_product`) and Pᵀ Bᵀ D B P (:meth:`reduced_tangent`).
         self._BP: PETSc.Mat | None = None
         self._PtBtDBP: PETSc.Mat | None = None
         self._d = np.zeros(self.n_owned)
@@ -198,18 +198,20 @@ class MeanDilatation:
         must be the same from call to call (its values may change). The same matrix object
         from call to call; owned here.
         """
+        self._PtBtDBP = self._btdb(self.reduced_product(P), self._PtBtDBP)
+        return self._PtBtDBP
+
+    def reduced_product(self, P: PETSc.Mat) -> PETSc.Mat:
+        """B P at the state of the last :meth:`update` (B's rows: the pressure DOFs).
+
+        ``P``'s pattern must be the same from call to call (its values may change). The same
+        matrix object from call to call; owned here.
+        """
         B = self._assemble_b()
         if self._BP is None:
             self._BP = B.matMult(P)
         else:
             B.matMult(P, result=self._BP)
-        self._PtBtDBP = self._btdb(self._BP, self._PtBtDBP)
-        return self._PtBtDBP
-
-    def reduced_product(self) -> PETSc.Mat:
-        """B P of the last :meth:`reduced_tangent` (owned here)."""
-        if self._BP is None:
-            raise RuntimeError("MeanDilatation: reduced_product before reduced_tangent")
         return self._BP
 
     def stiffness_diagonal(self) -> np.ndarray:

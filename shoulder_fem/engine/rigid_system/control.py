@@ -29,6 +29,7 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.rigid_system.layout import ReducedLayout
 from shoulder_fem.engine.rigid_system.terms import left_jacobian
+from shoulder_fem.engine.rigid_system.uncondensed import operator
 
 __all__ = [
     "ControlledSystem",
@@ -223,10 +224,10 @@ class ControlledSystem:
             raise ValueError(f"{self.prefix}: control_tangent needs set_control first")
         t0 = time.perf_counter()
         if refresh:
-            J = self._problem.J
+            A, J = operator(self._problem), self._problem.J
             x = self._problem.x_from_state(targets=False).copy()
-            self.snes.computeJacobian(x, J, J)
-            self.snes.getKSP().setOperators(J, J)
+            self.snes.computeJacobian(x, A, J)
+            self.snes.getKSP().setOperators(A, J)
             x.destroy()
         v = control_tangent(self.snes.getKSP(), self._problem.J, self._problem.layout, control)
         self.stats.snes_s += time.perf_counter() - t0

@@ -234,7 +234,7 @@ class ReducedProblem:
         self.comm = layout.comm
         # the products of the contact's tangent and of a P1 pressure's volumetric tangent
         self.contact, self.volumetric = ContactProduct(self.comm), VolumetricProduct(self.comm)
-        #: J₀ and the bordered LU of the Newton steps (:mod:`~.uncondensed`), or None.
+        #: The bordered LU of the Newton steps and J's operator (:mod:`~.uncondensed`), or None.
         self.uncondensed = None
         self.R0 = [b.rotation.copy() for b in bodies]
         self.phi = np.zeros((len(bodies), 3))
@@ -421,10 +421,10 @@ class ReducedProblem:
                         arr[k : k + 3] = control
 
     def jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, J: PETSc.Mat, P: PETSc.Mat) -> None:
-        """SNES Jacobian: J = Pᵀ K P + rigid tangent at ``x``; prescribed bodies' rows identity."""
+        """SNES Jacobian: J = Pᵀ K P + rigid tangent at ``x`` into :attr:`J` (:func:`operator`)."""
         with timed(self.stats, "jacobian_s"):
-            self._jacobian(x, J)
-        nonzeros = J.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
+            self._jacobian(x, self.J)
+        nonzeros = self.J.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
         if snes is not None and nonzeros != self._nonzeros:
             # A widened pattern (new contact entries, the control row) must be analysed
             # afresh: measured under mpirun -n 2, MUMPS reused the old analysis and corrupted
@@ -441,7 +441,7 @@ class ReducedProblem:
         terms = self.rigid_terms(with_tangent=True)
         finish_jacobian(self, J, terms)
         if self.uncondensed is not None:
-            self.uncondensed.refresh(terms)
+            self.uncondensed.refresh()
         self.stats.factorizations += 1
 
     def _f_current(self, x: PETSc.Vec) -> bool:
@@ -462,7 +462,8 @@ class ReducedProblem:
             self._fe_sum(J, self.C)
         if self.fe.contact is not None:
             self.contact.add(J, self.fe, self.P, self.stats)
-        add_volumetric_tangent(self, J)
+        if self.uncondensed is None:  # else applied by the operator, never assembled
+            add_volumetric_tangent(self, J)
 
     # ---- the Jacobian's pattern ---------------------------------------------------------------
     def _create_jacobian(self) -> PETSc.Mat:

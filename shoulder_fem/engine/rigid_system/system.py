@@ -34,7 +34,7 @@ from shoulder_fem.engine.rigid_system.problem import (
     timed,
 )
 from shoulder_fem.engine.rigid_system.reports import SystemReports
-from shoulder_fem.engine.rigid_system.uncondensed import UncondensedLU, UncondensedPC
+from shoulder_fem.engine.rigid_system.uncondensed import UncondensedLU, UncondensedPC, operator
 from shoulder_fem.engine.solver import (
     ConvergenceError,
     default_snes_options,
@@ -88,6 +88,8 @@ def create_snes(
 def use_uncondensed(snes: PETSc.SNES, problem: ReducedProblem, prefix: str) -> None:
     """Make ``snes``'s preconditioner the bordered LU of :mod:`~.uncondensed`.
 
+    Its operator becomes J₀ with the pressures' product applied (J is not assembled).
+
     Raises:
         ValueError: No P1 volumetric terms, or a linear solver other than ``preonly`` + LU.
     """
@@ -104,6 +106,7 @@ def use_uncondensed(snes: PETSc.SNES, problem: ReducedProblem, prefix: str) -> N
     pc = ksp.getPC()
     pc.setType(PETSc.PC.Type.PYTHON)
     pc.setPythonContext(UncondensedPC(lu))
+    snes.setJacobian(problem.jacobian, operator(problem), problem.J)
 
 
 def run_snes(snes: PETSc.SNES, x: PETSc.Vec, stats: RigidSolveStats, step: str, prefix: str) -> int:
@@ -328,8 +331,8 @@ class RigidSystem(SystemReports, ControlledSystem, OffsetTies, SplitFields):
         if self._fresh_jacobians and jacobian_is_stale(self._problem):
             self.snes.getKSP().reset()  # frees the factorization and its hold on the old J
             rebuild_jacobian(self._problem)
-            J = self._problem.J
-            self.snes.setJacobian(self._problem.jacobian, J, J)
+            problem = self._problem
+            self.snes.setJacobian(problem.jacobian, operator(problem), problem.J)
         x = self._problem.x_from_state()
         its = run_snes(self.snes, x, self.stats, step, self.prefix)
         self._problem.update_state(x)

@@ -17,9 +17,12 @@ with the prescribed DOFs' columns zeroed, G_T also with the controlled rows' (J'
 columns that :func:`~.problem.finish_jacobian` replaces). A pressure DOF outside the soft
 tissue (d = 0, an empty row of G) gets -1 on the diagonal.
 
-:class:`UncondensedLU` keeps J₀ (its own pattern, assembled from the products the Jacobian
-formed) and A; :class:`UncondensedPC` is the SNES's preconditioner (a ``python`` PC): with
-``preonly`` it is the Newton step, as the LU of J was, and J stays the SNES's operator.
+J itself is never assembled: the problem's matrix is J₀ (its Jacobian leaves the volumetric
+product out), and the SNES's operator is :class:`UncondensedOperator`, which applies
+J = J₀ + G_Tᵀ D G_B to a vector (for line searches, tests and monitors; ``preonly`` applies
+only the PC). :class:`UncondensedLU` keeps the blocks and A; :class:`UncondensedPC` is the
+SNES's preconditioner (a ``python`` PC): with ``preonly`` it is the Newton step, as the LU of
+J was.
 """
 
 from __future__ import annotations
@@ -29,9 +32,8 @@ from petsc4py import PETSc
 
 from shoulder_fem.engine.petsc_lib import nonzero_key
 from shoulder_fem.engine.solver import direct_solver_options, release_options, set_from_options
-from shoulder_fem.engine.subset_add import SubsetAdd
 
-__all__ = ["REFINEMENT", "UncondensedLU", "UncondensedPC"]
+__all__ = ["REFINEMENT", "UncondensedLU", "UncondensedOperator", "UncondensedPC", "operator"]
 
 #: Two steps of MUMPS's iterative refinement on every solve with A (ICNTL(10) < 0: that many,
 #: without a test). Without them a step left ‖J x - b‖ up to 2e-11 ‖b‖ (against about 1e-13
@@ -39,6 +41,11 @@ __all__ = ["REFINEMENT", "UncondensedLU", "UncondensedPC"]
 #: 429 Newton iterations (a second ``l2`` retry) against the condensed LU's 409; with them
 #: the same 409, each step and retry as the LU of J's, the outputs within 1e-9.
 REFINEMENT = {"mat_mumps_icntl_10": -2}
+
+
+def operator(problem) -> PETSc.Mat:
+    """A :class:`~.problem.ReducedProblem`'s SNES operator: its J, or J₀ + G_Tᵀ D G_B applied."""
+    return problem.J if problem.uncondensed is None else problem.uncondensed.operator
 
 
 class UncondensedLU:
@@ -52,53 +59,41 @@ class UncondensedLU:
     def __init__(self, problem, prefix: str) -> None:
         self.problem = problem
         self.comm = problem.comm
-        self.J0: PETSc.Mat | None = None
-        #: The contact entries merged into J₀'s pattern (:func:`add_to_pattern`).
-        self.keys = np.zeros(0, dtype=np.int64)
-        self._rebuilds = -1  # problem.stats.pattern_rebuilds when J₀ was made
-        #: J₀ += the FE product, J₀ += the contact's (one each: a walk checks patterns anew
-        #: whenever its pair of matrices changes)
-        self.sums = SubsetAdd(), SubsetAdd()
         self._G: dict[str, PETSc.Mat] = {}
-        self._D: PETSc.Mat | None = None
+        self._D: PETSc.Mat | None = None  # A's block, -D⁻¹
+        self._d: PETSc.Vec | None = None  # D's diagonal, the operator's
         self._nest: PETSc.Mat | None = None
         self.A: PETSc.Mat | None = None
         self._A_key = None  # J₀'s (id, nonzero state) when A was made
+        self._factored = None  # J₀'s (handle, object state) after the last factorization
         self._vecs: tuple[PETSc.Vec, PETSc.Vec] | None = None
         self.ksp = PETSc.KSP().create(self.comm)
         self.ksp_prefix = f"{prefix}uncondensed_"
         self.ksp.setOptionsPrefix(self.ksp_prefix)
         set_from_options(self.ksp, direct_solver_options() | REFINEMENT)
+        #: J as the SNES's operator (a ``python`` Mat of J₀'s sizes).
+        self.operator = PETSc.Mat().createPython(
+            problem.J.getSizes(), UncondensedOperator(self), comm=self.comm
+        )
+        self.operator.setUp()
 
-    # ---- J₀ and the blocks, at each Jacobian ------------------------------------------------
-    def refresh(self, terms) -> None:
-        """J₀ and G_T, G_B, D at the state of the Jacobian just formed (collective).
+    @property
+    def J0(self) -> PETSc.Mat:
+        """J₀: the problem's Jacobian matrix, without the condensed pressure's product."""
+        return self.problem.J
 
-        Called by the Jacobian once J is complete; ``terms``: its rigid terms.
+    # ---- the blocks, at each Jacobian ----------------------------------------------------------
+    def refresh(self) -> None:
+        """G_T, G_B and D at the state of the Jacobian just formed (collective).
+
+        Called by the Jacobian once J₀ is complete (its prolongation filled at this state).
         """
-        from shoulder_fem.engine.contact import add_to_pattern
-        from shoulder_fem.engine.rigid_system.problem import finish_jacobian, jacobian_pattern
-
-        p = self.problem
-        if self.J0 is None or self._rebuilds != p.stats.pattern_rebuilds:
-            if self.J0 is not None:
-                self.J0.destroy()
-            self.J0 = jacobian_pattern(p)
-            self.keys = np.zeros(0, dtype=np.int64)
-            self._rebuilds = p.stats.pattern_rebuilds
-        J0 = self.J0
-        J0.zeroEntries()
-        fe_sum, contact_sum = self.sums
-        fe_sum(J0, p.C)
-        if p.contact.C is not None:
-            self.keys = add_to_pattern(J0, p.contact.C, self.keys, self.comm, add=contact_sum)
-        finish_jacobian(p, J0, terms)
         self._blocks()
 
     def _blocks(self) -> None:
         p = self.problem
         vol = p.fe.volumetric
-        G = vol.reduced_product()  # B P at this state (the Jacobian's reduced_tangent)
+        G = vol.reduced_product(p.P)  # B P at this state
         prescribed = p.dirichlet_rows()
         controlled = p.layout.rigid_cols(p.control.body)[:3] if p.control is not None else []
         mask_b, mask_t = G.createVecRight(), G.createVecRight()
@@ -118,8 +113,11 @@ class UncondensedLU:
             self._G["Tt"] = self._G["T"].transpose(PETSc.Mat())  # no argument: in place
         else:
             self._G["T"].transpose(self._G["Tt"])
-        d = G.createVecLeft()
         diagonal = vol.stiffness_diagonal()
+        if self._d is None:
+            self._d = G.createVecLeft()
+        self._d.array[:] = diagonal
+        d = G.createVecLeft()
         # d < 0 (θ > e) is still exact: only d = 0 (no tissue, an empty row of G) has no inverse
         held = diagonal != 0
         d.array[:] = -1.0
@@ -134,6 +132,20 @@ class UncondensedLU:
             self._D.setDiagonal(d)
         d.destroy()
 
+    def apply_condensed(self, x: PETSc.Vec, y: PETSc.Vec, transpose: bool = False) -> None:
+        """J x = J₀ x + G_Tᵀ D G_B x (or Jᵀ x) into ``y`` at the last :meth:`refresh`."""
+        G = self._G
+        first, second = (G["T"], G["B"]) if transpose else (G["B"], G["T"])
+        g = self._d.duplicate()
+        first.mult(x, g)
+        g.pointwiseMult(g, self._d)
+        if transpose:
+            self.J0.multTranspose(x, y)
+        else:
+            self.J0.mult(x, y)
+        second.multTransposeAdd(g, y, y)
+        g.destroy()
+
     # ---- A and its LU -------------------------------------------------------------------------
     def factorize(self) -> None:
         """A at the last :meth:`refresh`, and its LU (a new analysis when J₀'s pattern grew)."""
@@ -145,6 +157,13 @@ class UncondensedLU:
             self._nest.convert(PETSc.Mat.Type.AIJ, self.A)
         self.ksp.setOperators(self.A, self.A)
         self.ksp.setUp()
+        # reading J₀ into A raises J₀'s object state, so PETSc would set the PC up again for
+        # the same J₀: measured, every Newton step factorized A twice
+        self._factored = (self.J0.handle, self.J0.stateGet())
+
+    def current(self) -> bool:
+        """Whether A's LU is of J₀ as it is now (nothing changed J₀ since :meth:`factorize`)."""
+        return self._factored == (self.J0.handle, self.J0.stateGet())
 
     def _new_bordered(self) -> None:
         for obj in (self._nest, self.A, *(self._vecs or ())):
@@ -169,11 +188,11 @@ class UncondensedLU:
     def forget(self) -> None:
         """Drop the factorization (the next one is analysed afresh)."""
         self.ksp.reset()
-        self._A_key = None
+        self._A_key = self._factored = None
 
     def destroy(self) -> None:
-        """Free the PETSc objects."""
-        for obj in (self.J0, self._D, self._nest, self.A, *(self._vecs or ())):
+        """Free the PETSc objects (J₀ is the problem's)."""
+        for obj in (self._D, self._d, self._nest, self.A, self.operator, *(self._vecs or ())):
             if obj is not None:
                 obj.destroy()
         for mat in self._G.values():
@@ -183,6 +202,21 @@ class UncondensedLU:
         release_options(self.ksp_prefix)
 
 
+class UncondensedOperator:
+    """The context of a ``python`` Mat that applies J = J₀ + G_Tᵀ D G_B (the SNES's operator)."""
+
+    def __init__(self, lu: UncondensedLU) -> None:
+        self.lu = lu
+
+    def mult(self, mat, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        """J x into ``y``."""
+        self.lu.apply_condensed(x, y)
+
+    def multTranspose(self, mat, x: PETSc.Vec, y: PETSc.Vec) -> None:  # noqa: N802 (petsc4py)
+        """Jᵀ x into ``y``."""
+        self.lu.apply_condensed(x, y, transpose=True)
+
+
 class UncondensedPC:
     """The context of a ``python`` PC whose set-up factorizes A and whose apply solves with it."""
 
@@ -190,8 +224,9 @@ class UncondensedPC:
         self.lu = lu
 
     def setUp(self, pc) -> None:  # noqa: N802 (petsc4py's name)
-        """Factorize A (PETSc calls it when J changed)."""
-        self.lu.factorize()
+        """Factorize A (PETSc calls it when J₀ changed, and once more after A read it)."""
+        if not self.lu.current():
+            self.lu.factorize()
 
     def apply(self, pc, x: PETSc.Vec, y: PETSc.Vec) -> None:
         """Solve J y = x."""

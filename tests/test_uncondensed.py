@@ -147,7 +147,7 @@ def test_the_operator_is_the_condensed_jacobian(prescribed):
 
     rng = np.random.default_rng(7)
     systems = [_tied_block(prescribed, uncondensed) for uncondensed in (True, False)]
-    (bordered, md_b), (condensed, md_c) = systems
+    (bordered, _), (condensed, _) = systems
     x = bordered.reduced_vector()
     x.array[:] += 2e-4 * rng.uniform(-1.0, 1.0, x.getLocalSize())
     outputs = []
@@ -167,8 +167,10 @@ def test_the_operator_is_the_condensed_jacobian(prescribed):
         diff = ours.copy()
         diff.axpy(-1.0, theirs)
         assert theirs.norm() > 0
+        # the other method: the condensed system's assembled J; equal up to round-off
         assert diff.norm() <= 1e-12 * theirs.norm(), diff.norm() / theirs.norm()
     if not prescribed:
+        # a convergence rate: the remainders of an exact tangent fall as eps², rate 2
         remainders, rates = taylor_rates(bordered, rng, 1e-5)
         assert min(rates) > 1.8, (remainders, rates)
     for system, md in systems:

@@ -421,7 +421,7 @@ class ReducedProblem:
                         arr[k : k + 3] = control
 
     def jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, J: PETSc.Mat, P: PETSc.Mat) -> None:
-        """SNES Jacobian: J = Pᵀ K P + rigid tangent at ``x`` into :attr:`J` (:func:`operator`)."""
+        """SNES Jacobian: Pᵀ K P + rigid tangent at ``x`` into :attr:`J` (see ``operator``)."""
         with timed(self.stats, "jacobian_s"):
             self._jacobian(x, self.J)
         nonzeros = self.J.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]

@@ -9,7 +9,7 @@ APT_PACKAGES=(
   python3-dolfinx python3-petsc4py python3-mpi4py python3-ufl python3-ffcx python3-basix
   python3-gmsh python3-meshio python3-h5py python3-nibabel python3-pydicom python3-tqdm python3-cffi python3-pint
   openmpi-bin libopenblas0-openmp
-  python3-numpy python3-scipy python3-matplotlib python3-pytest
+  python3-numpy python3-scipy python3-matplotlib python3-pytest python3-pytest-timeout
   python3-venv python3-pip python3-setuptools
   gcc
 )

@@ -1,4 +1,8 @@
-"""Shared fixtures: a temporary folder common to all MPI ranks, and a collective teardown."""
+"""Shared fixtures: a temporary folder common to all MPI ranks, and a collective teardown.
+
+Under mpirun the ranks agree on every test's outcome and a rank left inside a test that another
+rank failed ends the job (``_lockstep``).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,15 @@ import logging
 from pathlib import Path
 
 import pytest
+
+# the hooks that keep the MPI ranks in step (pytest reads a conftest's hook functions by name)
+from _lockstep import (  # noqa: F401
+    pytest_collection_finish,
+    pytest_configure,
+    pytest_runtest_logstart,
+    pytest_runtest_makereport,
+    pytest_unconfigure,
+)
 from mpi4py import MPI
 
 # every test's forms wait for another process's compilation as the runs do (JIT_TIMEOUT)

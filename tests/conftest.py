@@ -18,6 +18,9 @@ from _lockstep import (  # noqa: F401
     pytest_configure,
     pytest_runtest_logstart,
     pytest_runtest_makereport,
+    pytest_runtest_protocol,
+    pytest_timeout_cancel_timer,
+    pytest_timeout_set_timer,
     pytest_unconfigure,
 )
 from mpi4py import MPI

@@ -70,9 +70,50 @@ def test_a_failure_before_a_collective_ends_the_job_on_both_ranks(tmp_path: Path
     # rank 1 names its failure with the assertion; rank 0 names the test it is stuck in,
     # who failed it, and prints where it waits
     assert f"[rank 1] FAILED {name} (call): assert 1 != 1" in out[1], out[1]
-    assert f"[rank 0] FAILED {name}: rank 1 failed it (assert 1 != 1)" in out[0], out[0]
+    assert f"[rank 0] FAILED {name}: rank 1 left it early (assert 1 != 1)" in out[0], out[0]
     assert "in test_fails_on_rank_1_only" in out[0], out[0]  # its stack, at the allgather
     assert "test_never_reached PASSED" not in out[0] + out[1]
+
+
+def test_a_failure_before_a_petsc_collective_ends_the_job(tmp_path: Path) -> None:
+    # rank 0 waits inside PETSc, holding the GIL: its watchdog cannot run, rank 1 ends the job
+    status, elapsed, out = _run_on_two_ranks(
+        tmp_path,
+        """
+        from mpi4py import MPI
+        from petsc4py import PETSc
+
+        def test_fails_on_rank_1_only():
+            assert MPI.COMM_WORLD.rank != 1
+            PETSc.Vec().createMPI(10, comm=PETSc.COMM_WORLD).norm()
+        """,
+    )
+    assert status != 0, out
+    assert elapsed < HANG_S / 2, out
+    name = "test_cases.py::test_fails_on_rank_1_only"
+    assert f"[rank 1] FAILED {name}: this rank left it (assert 1 != 1)" in out[1], out[1]
+    # rank 0's stack, printed as mpirun ended it, shows where it waited
+    assert "in test_fails_on_rank_1_only" in out[0], out[0]
+
+
+def test_a_skip_on_one_rank_before_a_collective_ends_the_job(tmp_path: Path) -> None:
+    status, elapsed, out = _run_on_two_ranks(
+        tmp_path,
+        """
+        import pytest
+        from mpi4py import MPI
+
+        def test_skips_on_rank_1_only():
+            comm = MPI.COMM_WORLD
+            if comm.rank == 1:
+                pytest.skip("nothing to check on this rank")
+            comm.allgather(comm.rank)
+        """,
+    )
+    assert status != 0, out
+    assert elapsed < HANG_S / 2, out
+    name = "test_cases.py::test_skips_on_rank_1_only"
+    assert f"[rank 0] FAILED {name}: rank 1 left it early (skipped)" in out[0], out[0]
 
 
 def test_a_failure_after_the_last_collective_fails_on_both_ranks_and_the_run_goes_on(

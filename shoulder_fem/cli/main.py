@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from shoulder_fem import __version__
@@ -44,38 +45,59 @@ def _raise_on_sigterm(signum, frame) -> None:
     raise _Terminated(EXIT_TERMINATED)
 
 
-def _watch_sigterm_under_mpi(started: float, args) -> None:
+def _watch_sigterm_under_mpi(started: float, args) -> Callable[[], None]:
     """Under MPI, rank 0 alone acts on SIGTERM, at once; the other ranks ignore it.
 
     mpirun forwards SIGTERM to every rank, then kills them after ``odls_base_sigkill_timeout``
     seconds. With the serial runs' handler (an exception that unwinds the run), a rank that
-    raised left the others blocked in an MPI collective; rank 0, the one that removes the
-    unfinished output folder, then never came back to Python and was killed with the folder
-    half-written (measured: 1 try in 3). Now the other ranks carry on until they are killed,
-    so rank 0's collectives complete, and rank 0's handler runs as soon as its main thread is
-    back in Python: it discards the unfinished output folders (no MPI), says so in one line
-    and ends the process with status 143 (no unwinding: the code on the way out could call a
-    collective the other ranks never join). Serial runs keep the orderly path.
+    raised left the others blocked in an MPI collective and rank 0, the one that removes the
+    unfinished output folder, was killed with the folder half-written. Now the other ranks
+    carry on until they are killed, so rank 0's collectives complete, and rank 0's clean-up
+    is done by its stop guard (``stop_guard.py``), a process that learns of the signal at once
+    even while rank 0's main thread is inside a long C call (where Python cannot run a
+    handler): it removes the unfinished output folders and the unfinished form-cache claims and
+    says so in one line. Rank 0's handler then ends the process with status 143 (no unwinding:
+    the code on the way out could call a collective the other ranks never join); without a
+    guard it does the clean-up itself. Serial runs keep the orderly path.
+
+    Returns:
+        What ends the watch when the command is over (the guard's process, its watcher).
     """
     from mpi4py import MPI
 
     comm = MPI.COMM_WORLD
     if comm.size == 1:
-        return
+        return lambda: None
     if comm.rank != 0:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        return
+        return lambda: None
+    from shoulder_fem.cli.stop_guard import StopGuard
+    from shoulder_fem.io.output import abort_open_outputs, watch_open_outputs
+
+    guard = None
+    try:
+        guard = StopGuard(f"stopped by SIGTERM{_what_was_kept(args)}", _form_cache(), started)
+    except OSError as err:  # no process or pipe to be had: rank 0 cleans up itself
+        logger.debug("no stop guard (%s): rank 0's handler removes the output", err)
 
     def stop(signum, frame) -> None:
-        from shoulder_fem.io.output import abort_open_outputs
-
-        abort_open_outputs()
-        _say_stopped("stopped by SIGTERM", started, args)
+        if guard is None or not guard.wait_done():
+            abort_open_outputs()
+            _say_stopped("stopped by SIGTERM", started, args)
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(EXIT_TERMINATED)
 
     signal.signal(signal.SIGTERM, stop)
+    if guard is None:
+        return lambda: None
+    unwatch = watch_open_outputs(lambda folders: guard.update(remove=folders))
+
+    def end() -> None:
+        unwatch()
+        guard.close()
+
+    return end
 
 
 class _RankFilter(logging.Filter):
@@ -220,29 +242,24 @@ def pin_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
-def remove_unfinished_forms(since: float) -> list[Path]:
-    """Remove the form-cache entries whose compilation this stopped process left unfinished.
-
-    FFCx claims a form by creating ``<module>.c`` and marks it done with ``<module>.c.cached``;
-    a process stopped in between leaves the claim, and every later run waits for it and dies
-    with "JIT compilation timed out" (measured). The claims without their mark made since
-    ``since`` (``time.time()``, this run's start) are removed, so the next run compiles anew.
-    """
+def _form_cache() -> Path | None:
+    """The form cache's folder (dolfinx's JIT parameters), None without dolfinx."""
     try:
         import dolfinx.jit
     except ImportError:
-        return []
-    cache = Path(dolfinx.jit.get_parameters()["cache_dir"])
-    removed = []
-    for claim in cache.glob("*.c") if cache.is_dir() else ():
-        try:
-            unfinished = not claim.with_suffix(".c.cached").exists()
-            if unfinished and claim.stat().st_mtime >= since - 1.0:
-                claim.unlink()
-                removed.append(claim)
-        except OSError:
-            continue
-    return removed
+        return None
+    return Path(dolfinx.jit.get_parameters()["cache_dir"])
+
+
+def remove_unfinished_forms(since: float) -> list[Path]:
+    """Remove the form-cache claims this stopped process left unfinished (since ``since``).
+
+    See :func:`shoulder_fem.cli.stop_guard.remove_unfinished_forms`.
+    """
+    from shoulder_fem.cli.stop_guard import remove_unfinished_forms as remove
+
+    cache = _form_cache()
+    return [] if cache is None else remove(cache, since)
 
 
 def _say_stopped(how: str, started: float, args) -> None:
@@ -282,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     from shoulder_fem.scene import SceneError
 
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
-    _watch_sigterm_under_mpi(started, args)
+    end_watch = _watch_sigterm_under_mpi(started, args)
     # Ctrl-C raises KeyboardInterrupt (one line, exit 130, the unfinished output removed). The
     # gmsh 4.8 module sets SIGINT to its default action when imported (a Ctrl-C while meshing
     # killed the run with no clean-up, measured): import it first, then take SIGINT back.
@@ -324,6 +341,8 @@ def main(argv: list[str] | None = None) -> int:
     except Exception:
         _abort_other_ranks()
         raise
+    finally:
+        end_watch()
 
 
 def _abort_other_ranks() -> None:

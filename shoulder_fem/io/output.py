@@ -165,6 +165,25 @@ def atomic_savez(path: str | os.PathLike[str], arrays: Mapping[str, Any]) -> Non
 
 #: The output folders of this process not yet committed or aborted.
 _OPEN: weakref.WeakSet = weakref.WeakSet()
+#: Told the staging folders of :data:`_OPEN` whenever they change (rank 0's stop guard).
+_WATCHERS: list[Callable[[list[str]], None]] = []
+
+
+def watch_open_outputs(watcher: Callable[[list[str]], None]) -> Callable[[], None]:
+    """Call ``watcher`` with the staging folders being written, now and at every change.
+
+    Returns:
+        The function that stops it.
+    """
+    _WATCHERS.append(watcher)
+    _open_changed()
+    return lambda: _WATCHERS.remove(watcher)
+
+
+def _open_changed() -> None:
+    paths = [str(out.path) for out in list(_OPEN)]
+    for watcher in _WATCHERS:
+        watcher(paths)
 
 
 def abort_open_outputs() -> None:
@@ -317,6 +336,7 @@ class OutputDir:
         self._staging = self.final.parent / f"{self.final.name}.partial-{token}"
         self._state = "open"
         _OPEN.add(self)
+        _open_changed()
 
     @property
     def path(self) -> Path:
@@ -367,9 +387,11 @@ class OutputDir:
         if error is not None:
             self._state = "failed"
             _OPEN.discard(self)
+            _open_changed()
             raise OutputError(error)
         self._state = "committed"
         _OPEN.discard(self)
+        _open_changed()
         return self.final
 
     def _commit_rank0(self) -> None:
@@ -411,6 +433,7 @@ class OutputDir:
             return
         self._state = "aborted"
         _OPEN.discard(self)
+        _open_changed()
         if self.comm.rank == 0:
             # Another rank may still be closing files inside: retry once if the folder refills.
             for _ in range(3):

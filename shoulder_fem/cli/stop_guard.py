@@ -119,6 +119,7 @@ class StopGuard:
         for fd in (wakeup_r, control_r, ack_w):
             os.close(fd)
         self._wakeup = wakeup_w
+        self._closed = False
         signal.set_wakeup_fd(wakeup_w, warn_on_full_buffer=False)
         self.update(say=say, cache=cache, started=started, remove=[])
 
@@ -130,6 +131,9 @@ class StopGuard:
 
     def close(self) -> None:
         """Stop watching (the command is over): the guard sees its pipe close and exits."""
+        if self._closed:
+            return
+        self._closed = True
         if signal.set_wakeup_fd(-1) != self._wakeup:
             signal.set_wakeup_fd(-1)  # another wakeup fd had been set since: leave it unset
         os.close(self._control)
@@ -139,7 +143,13 @@ class StopGuard:
         os.close(self._ack)
 
     def wait_done(self) -> bool:
-        """After SIGTERM: wait until the guard has cleaned up; False if it did not say so."""
+        """After SIGTERM: wait until the guard has cleaned up.
+
+        Returns:
+            False if it did not say so in time, or was closed (its command is over).
+        """
+        if self._closed:
+            return False
         ready, _, _ = select.select([self._ack], [], [], ACK_TIMEOUT_S)
         return bool(ready)
 

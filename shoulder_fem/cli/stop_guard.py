@@ -104,7 +104,7 @@ class StopGuard:
         started: the run's start (``time.time()``).
     """
 
-    def __init__(self, say: str | None, cache: str | None, started: float) -> None:
+    def __init__(self, say: str | None, cache: Path | None, started: float) -> None:
         wakeup_r, wakeup_w = os.pipe()
         control_r, self._control = os.pipe()
         self._ack, ack_w = os.pipe()
@@ -134,8 +134,9 @@ class StopGuard:
         if self._closed:
             return
         self._closed = True
-        if signal.set_wakeup_fd(-1) != self._wakeup:
-            signal.set_wakeup_fd(-1)  # another wakeup fd had been set since: leave it unset
+        previous = signal.set_wakeup_fd(-1)
+        if previous != self._wakeup:
+            signal.set_wakeup_fd(previous)  # another one was set since: it stays
         os.close(self._control)
         with contextlib.suppress(subprocess.TimeoutExpired):
             self.process.wait(timeout=ACK_TIMEOUT_S)

@@ -186,6 +186,12 @@ def _open_changed() -> None:
         watcher(paths)
 
 
+def _closed(out: OutputDir) -> None:
+    """``out`` is no longer being written (committed, failed or aborted)."""
+    _OPEN.discard(out)
+    _open_changed()
+
+
 def abort_open_outputs() -> None:
     """Discard every output folder still being written by this process.
 
@@ -386,12 +392,10 @@ class OutputDir:
         error = self.comm.bcast(error, root=0)
         if error is not None:
             self._state = "failed"
-            _OPEN.discard(self)
-            _open_changed()
+            _closed(self)
             raise OutputError(error)
         self._state = "committed"
-        _OPEN.discard(self)
-        _open_changed()
+        _closed(self)
         return self.final
 
     def _commit_rank0(self) -> None:
@@ -432,8 +436,7 @@ class OutputDir:
         if self._state != "open":
             return
         self._state = "aborted"
-        _OPEN.discard(self)
-        _open_changed()
+        _closed(self)
         if self.comm.rank == 0:
             # Another rank may still be closing files inside: retry once if the folder refills.
             for _ in range(3):

@@ -197,6 +197,7 @@ def test_output_replaces_previous_result(comm_tmp: Path) -> None:
         OutputDir(final, COMM)
     assert load_summary(final) == {"old": True}
     assert sorted(os.listdir(comm_tmp)) == ["run"]
+    COMM.Barrier()  # all ranks have looked before rank 0 creates the staging folder
     with OutputDir(final, COMM, replace=True) as out:
         if COMM.rank == 0:
             atomic_write_json(out.path / SUMMARY_NAME, {"new": True})

@@ -124,7 +124,9 @@ def run(
     ``part1_from``: a finished decoupled run whose part 1 this one takes (:func:`sweep`).
 
     Returns:
-        The run's summary.
+        The run's summary. Its ``status`` is ``"ok"``, or ``"incomplete"`` for a run that
+        stopped short of its final angle (its completed steps kept, ``message`` naming the
+        angle reached and the reason; the command line exits 3 then).
     """
     from shoulder_fem.io.output import OutputDir
     from shoulder_fem.io.resources import ResourceMonitor, blas_library, thread_settings

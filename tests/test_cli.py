@@ -233,6 +233,23 @@ def test_sigterm_removes_the_unfinished_output(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_run_piped_into_head_finishes_its_output(tmp_path: Path) -> None:
+    """``shoulder-fem run ... 2>&1 | head -2``: the reader goes away after two log lines
+    while the run still logs its steps. The run finishes and writes its whole result (exit
+    status 0, ``status = ok``, no ``OUT.partial-*``) with its output dropped (before, PETSc's
+    SIGPIPE handler aborted it with status 59 and left the staging folder)."""
+    out = tmp_path / "bar"
+    cmd = [sys.executable, "-m", "shoulder_fem.cli", "run", "spinning-bar", "--method"]
+    cmd += ["coupled", "--set", "end_time=0.01", "--out", str(out)]  # 20 steps, a line each
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    lines = [child.stdout.readline() for _ in range(2)]
+    child.stdout.close()  # as head does after its lines
+    assert child.wait(timeout=300) == 0, lines
+    assert b"step 0/20" in lines[1], lines
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    assert _leftovers(tmp_path) == ["bar"]
+
+
 def test_sigterm_under_mpirun_removes_the_unfinished_output(tmp_path: Path) -> None:
     """``kill`` of ``mpirun -n 2`` in the middle of a run (Open MPI's own settings): rank 0
     says so in one line and removes the unfinished output, nothing is left behind. (Before,
@@ -415,6 +432,38 @@ def test_compare_of_other_scenes_and_of_a_failed_run(tmp_path, capsys):
     err = _one_line_error(capsys)
     assert f"{failed} is a run with status 'failed'" in err, err
     assert (out / "comparison.json").is_file()
+
+
+def test_a_run_that_stops_short_exits_3_in_run_and_bench(tmp_path, capfd):
+    """The shoulder forced into one 8-deg step with no cut-back allowed stops short (the step
+    does not converge: the cut-back test in test_shoulder halves the same step) with both
+    methods. ``bench`` runs each as ``shoulder-fem run`` in a child: each child ends with one
+    line naming the angle reached (its exit status 3, which the bench takes as a run kept over
+    what it reached); the bench writes its report over those angles and ends with its own
+    line and exit status 3; each folder keeps ``status = incomplete``."""
+    from shoulder_fem.cli import EXIT_SOLVER
+    from shoulder_fem.io.results import load_summary
+
+    labels = (("coupled", "coupled"), ("decoupled", "part1"))  # the solve that stopped
+    out = tmp_path / "short"
+    sets = ["final_angle=8deg", "angle_step=8deg", "max_angle_step=8deg", "output_angle=8deg"]
+    args = ["-q", "bench", "shoulder-internal-rotation"]
+    for item in [*sets, "max_cutbacks=0"]:
+        args += ["--set", item]
+    assert main([*args, "--out", str(out)]) == EXIT_SOLVER
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("shoulder-fem: error:")]
+    assert len(lines) == 3, err  # each run's, then the bench's
+    for (method, label), line in zip(labels, lines[:2], strict=True):
+        summary = load_summary(out / method)
+        reached = summary["probes"]["final_angle_deg"]
+        assert summary["status"] == "incomplete" and 0.0 <= reached < 8.0
+        assert line.startswith(f"shoulder-fem: error: run: {label}: stopped at"), line
+        assert f"{reached:.2f} deg of 8 deg" in line and "(status 'incomplete'" in line, line
+    assert lines[2].startswith("shoulder-fem: error: bench: coupled: stopped at"), lines[2]
+    assert str(out / "coupled") in lines[2]
+    assert (out / "report.md").is_file()
+    assert json.loads((out / "bench.json").read_text())["status"] == "complete"
 
 
 def test_scenes_name_lists_every_parameter_in_the_files_units(capsys):

@@ -18,7 +18,14 @@ import sys
 from pathlib import Path
 
 from shoulder_fem.cli.args import petsc_options
-from shoulder_fem.cli.commands import EXIT_INPUT, SolverFailure, generic_report, prepare, say
+from shoulder_fem.cli.commands import (
+    EXIT_INPUT,
+    SolverFailure,
+    generic_report,
+    prepare,
+    raise_unless_finished,
+    say,
+)
 
 #: What ``OUT/bench.json`` is called (also a result file: a rerun may replace the folder).
 BENCH_NAME = "bench.json"
@@ -121,11 +128,10 @@ def cmd_bench(args) -> int:
         save_state("complete")
         bench = BenchReport(scene, level, runs, out.path, comm)
         text = (fam.report or generic_report)(bench)
-    for method, data in runs.items():
-        if data.get("status") != "ok":
-            say(f"{method}: {data.get('status')}: {data.get('message')}")
     say(text)
     say(f"report: {args.out / 'report.md'}")
+    for method, data in runs.items():  # compared over what it reached, and said: exit status 3
+        raise_unless_finished(data, "bench", args.out / method)
     return 0
 
 
@@ -189,7 +195,7 @@ def _run_apart(args, method: str, folder: Path) -> dict:
             child.wait()
     if (folder / "summary.json").is_file():
         result = Result.load(folder)
-        if status == 0:
+        if status == 0 or result.data.get("status") == "incomplete":  # the bench compares it
             return result.data
         raise RunFailed(f"{method}: {result.data.get('message')}", result)
     if status == EXIT_INPUT:  # the child refused its input and printed which and why

@@ -109,7 +109,23 @@ def cmd_run(args) -> int:
         raise SolverFailure(str(err)) from err
     say(_probe_lines(result.data))
     say(f"results: {result.folder}")
+    raise_unless_finished(result.data, "run", result.folder)
     return 0
+
+
+def raise_unless_finished(summary: dict, command: str, folder) -> None:
+    """Raise :class:`SolverFailure` (exit status 3) unless ``summary`` is a finished run's.
+
+    A run that stopped short of its final angle keeps its completed steps with the status
+    ``incomplete`` and a message naming the angle reached and the reason: its command ends
+    with that line and exit status 3, as a failed solve does.
+    """
+    status = summary.get("status")
+    if status != "ok":
+        raise SolverFailure(
+            f"{command}: {summary.get('message')} (status '{status}'; the steps before it are "
+            f"in {folder})"
+        )
 
 
 def cmd_sweep(args) -> int:

@@ -100,6 +100,60 @@ def _watch_sigterm_under_mpi(started: float, args) -> Callable[[], None]:
     return end
 
 
+class _PipeSafe:
+    """A text stream whose reader may go away (``shoulder-fem run ... | head``).
+
+    Once a write or flush meets a broken pipe, its file descriptor is pointed at /dev/null, so
+    the rest of the output (Python's, and the libraries' own C writes) is dropped and the run
+    goes on to write its results, instead of stopping half-written.
+    """
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except BrokenPipeError:
+            self._to_devnull()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except BrokenPipeError:
+            self._to_devnull()
+
+    def _to_devnull(self) -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, self.stream.fileno())
+        os.close(devnull)
+        with contextlib.suppress(BrokenPipeError):  # what the buffer held goes there too
+            self.stream.flush()
+
+    def __getattr__(self, name: str):
+        return getattr(self.stream, name)
+
+
+def _survive_broken_pipes() -> Callable[[], None]:
+    """Make stdout and stderr :class:`_PipeSafe`; returns the function that restores them.
+
+    PETSc's initialization installs a SIGPIPE handler that aborts the process (exit status 59,
+    PETSC_ERR_SIG) and leaves the unfinished output folder behind: SIGPIPE is given back to
+    Python's own setting, ignored, so that a write to a closed pipe is a ``BrokenPipeError``.
+    """
+    from petsc4py import PETSc  # noqa: F401  initialized now, so its handler is set now
+
+    signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _PipeSafe(sys.stdout), _PipeSafe(sys.stderr)
+
+    def restore() -> None:
+        sys.stdout, sys.stderr = saved
+
+    return restore
+
+
 class _RankFilter(logging.Filter):
     def __init__(self, rank: int, all_ranks: bool):
         super().__init__()
@@ -288,6 +342,14 @@ def main(argv: list[str] | None = None) -> int:
     pin_threads()
     args = build_parser().parse_args(argv)
     verbosity = 0 if args.quiet else args.verbose
+    restore_streams = _survive_broken_pipes()
+    try:
+        return _main(args, started, verbosity)
+    finally:
+        restore_streams()
+
+
+def _main(args, started: float, verbosity: int) -> int:
     setup_logging(verbosity, args.log_all_ranks)
     import matplotlib
 

@@ -161,7 +161,11 @@ class Scene:
         return {k: p.unit for k, p in self.parameters.items()}
 
     def with_values(self, where: str = "override", **values) -> Scene:
-        """A copy with parameters changed; values in SI (numbers) are checked like the file's."""
+        """A copy with parameters changed, checked like the file's values.
+
+        A value is a number in SI (``final_angle=math.radians(20)``) or a string as ``--set``
+        takes it, with or without a unit (``final_angle="20deg"``, ``head_radius="25 mm"``).
+        """
         params = dict(self.parameters)
         for key, value in values.items():
             if key not in params:
@@ -169,6 +173,8 @@ class Scene:
                     f"{where}: unknown parameter '{key}' for scene '{self.name}' "
                     f"(known: {', '.join(sorted(params))})"
                 )
+            if isinstance(value, str) and not isinstance(params[key].value, str):
+                value = _parse_value(params[key], value, f"{where} {key}={value}")
             params[key] = params[key].checked(value, where)
         overridden = tuple(dict.fromkeys(self.overridden + tuple(values)))
         return replace(self, parameters=params, overridden=overridden)

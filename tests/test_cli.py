@@ -795,6 +795,20 @@ def test_units_pint_reads_convert_to_si(assignment, key, expected):
     library replaced the hand-written table)."""
     scene = load_scene("spinning-bar").with_overrides([assignment])
     assert scene[key] == pytest.approx(expected, rel=1e-12)
+    # the Python API takes the same strings (numbers stay SI)
+    text = assignment.partition("=")[2]
+    assert load_scene("spinning-bar").with_values(**{key: text})[key] == scene[key]
+
+
+def test_the_python_api_takes_the_command_lines_strings_and_its_errors():
+    """``with_values`` as ``--set``: "20deg" is 20 degrees in radians (converted by hand), a
+    number is SI, a count takes its digits, and a wrong unit is the same one-line error."""
+    scene = load_scene("shoulder-internal-rotation")
+    s = scene.with_values(final_angle="20deg", max_cutbacks="3", head_radius=0.025)
+    assert s["final_angle"] == pytest.approx(20 * math.pi / 180, rel=1e-15)
+    assert s["max_cutbacks"] == 3 and s["head_radius"] == 0.025
+    with pytest.raises(SceneError, match="unit 'kg' .* does not convert to rad"):
+        scene.with_values(final_angle="20kg")
 
 
 @pytest.mark.parametrize(

@@ -24,11 +24,15 @@ demo: setup
 	@mkdir -p $(dir $(DEMO_OUT))
 	$(PY) -m shoulder_fem.cli bench shoulder-internal-rotation --level $(LEVEL) --out $(DEMO_OUT) --force
 
-# Each phase prints its slowest tests and its time. Under mpirun the ranks agree on each test's
-# outcome and a rank's failure is printed at once with its rank (tests/_lockstep.py).
+# Each phase prints its slowest tests and its time. The serial phase runs on two worker
+# processes (pytest-xdist; a module's tests sharing a module fixture stay on one worker:
+# tests/conftest.py). Under mpirun the ranks agree on each test's outcome and a rank's failure
+# is printed at once with its rank (tests/_lockstep.py).
+TEST_WORKERS ?= 2
 test: setup
-	@t0=$$(date +%s); $(PY) -m pytest -q -rfE --durations=15 tests; rc=$$?; \
-	  echo "make test: serial phase $$(( $$(date +%s) - t0 )) s, exit $$rc"; exit $$rc
+	@t0=$$(date +%s); $(PY) -m pytest -q -rfE --durations=15 -n $(TEST_WORKERS) \
+	  --dist loadgroup tests; rc=$$?; \
+	  echo "make test: serial phase ($(TEST_WORKERS) workers) $$(( $$(date +%s) - t0 )) s, exit $$rc"; exit $$rc
 	@t0=$$(date +%s); $(MPIRUN) $(PY) -m mpi4py -m pytest -q -rfE --durations=15 --color=no \
 	  -m mpi -p no:cacheprovider tests; rc=$$?; \
 	  echo "make test: mpirun -n 2 phase $$(( $$(date +%s) - t0 )) s, exit $$rc"; exit $$rc

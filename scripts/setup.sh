@@ -9,7 +9,7 @@ APT_PACKAGES=(
   python3-dolfinx python3-petsc4py python3-mpi4py python3-ufl python3-ffcx python3-basix
   python3-gmsh python3-meshio python3-h5py python3-nibabel python3-pydicom python3-tqdm python3-cffi python3-pint
   openmpi-bin libopenblas0-openmp
-  python3-numpy python3-scipy python3-matplotlib python3-pytest python3-pytest-timeout
+  python3-numpy python3-scipy python3-matplotlib python3-pytest python3-pytest-timeout python3-pytest-xdist
   python3-venv python3-pip python3-setuptools
   gcc
 )
@@ -36,7 +36,7 @@ stamp=.venv/.shoulder-fem-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "setup: installing shoulder-fem (editable, with test extras)"
   .venv/bin/python -m pip install -q --no-build-isolation --no-deps -e .
-  .venv/bin/python -c "import pytest, numpy, scipy, matplotlib" 2>/dev/null \
+  .venv/bin/python -c "import pytest, pytest_timeout, xdist, numpy, scipy, matplotlib" 2>/dev/null \
     || .venv/bin/python -m pip install -q -e ".[test]"
   touch "$stamp"
 fi

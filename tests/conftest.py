@@ -28,6 +28,30 @@ from mpi4py import MPI
 # every test's forms wait for another process's compilation as the runs do (JIT_TIMEOUT)
 import shoulder_fem.engine.fem  # noqa: F401
 
+#: Fixture scopes that outlive a test: a test using one of this project's runs with the others
+#: of its module on one xdist worker, so that the fixture is computed once.
+_SHARED_SCOPES = ("module", "package", "session")
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's worker reads the groups
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under ``pytest -n N --dist loadgroup`` (make test's serial phase): keep a module's
+    tests that share one of its module-scoped fixtures on one worker, and start those groups
+    first, so that the other workers take the single tests meanwhile (a long group started
+    last would run alone at the end)."""
+    if not hasattr(config, "workerinput"):
+        return
+    grouped, others = [], []
+    for item in items:
+        defs = [d[-1] for d in item._fixtureinfo.name2fixturedefs.values()]
+        # a fixture of this project's (its baseid a test path; pytest's own have none)
+        if any(d.scope in _SHARED_SCOPES and d.baseid.startswith("tests") for d in defs):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+            grouped.append(item)
+        else:
+            others.append(item)
+    items[:] = grouped + others
+
 
 @pytest.fixture
 def comm_tmp(tmp_path: Path) -> Path:

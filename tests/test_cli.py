@@ -59,6 +59,22 @@ def _leftovers(folder: Path) -> list[str]:
             ],
             "the insertion footprint runs off the tuberosity onto the articular cartilage",
         ),
+        (
+            ["run", "shoulder-internal-rotation", "--method", "decoupled"]
+            + ["--set", "prosthesis_radius=23mm"],
+            "override(s) prosthesis_radius: prosthesis_radius acts only with head_shape = "
+            "prosthetic, and head_shape is 'spherical': add --set head_shape=prosthetic",
+        ),
+        (
+            ["bench", "shoulder-internal-rotation", "--set", "head_ratio=0.9"],
+            "head_ratio acts only with head_shape = ellipsoidal",
+        ),
+        (
+            ["mesh", "shoulder-internal-rotation", "--set", "head_shape=ellipsoidal"]
+            + ["--set", "prosthesis_offset_medial=5mm"],
+            "prosthesis_offset_medial acts only with head_shape = prosthetic, and head_shape "
+            "is 'ellipsoidal'",
+        ),
         (["bench", "hertz"], "scene 'hertz' has no decoupled method (it has: coupled)"),
         (["run", "hertz", "--method", "decoupled"], "scene 'hertz' has no decoupled method"),
         (

@@ -138,6 +138,9 @@ def _shoulder_scene(args):
             f"{scene.source}: scene '{scene.name}' is of family '{scene.family}'; "
             "the mesh command builds 'shoulder' scenes"
         )
+    from shoulder_fem.families.shoulder.model import check_effective
+
+    check_effective(scene)
     level = args.level or scene.default_level
     sizes = scene.level(level)
     try:

@@ -183,8 +183,32 @@ def reuse_meshes(source: Path | None = None):
         _MESHES, _SOURCE = None, None
 
 
+#: Keys that act only with one head shape: set with another, they would be silently ignored.
+_HEAD_SHAPE_KEYS = {
+    "prosthesis_radius": "prosthetic",
+    "prosthesis_offset_medial": "prosthetic",
+    "prosthesis_offset_posterior": "prosthetic",
+    "head_ratio": "ellipsoidal",
+}
+
+
+def check_effective(scene: Scene) -> None:
+    """Refuse a key given (``--set``, ``with_values``) that has no effect here.
+
+    Each key of :data:`_HEAD_SHAPE_KEYS` acts with one ``head_shape`` only; the line names it.
+    """
+    shape = scene["head_shape"]
+    for key, needs in _HEAD_SHAPE_KEYS.items():
+        if key in scene.overridden and shape != needs:
+            raise SceneError(
+                f"{scene.where(key)}: {key} acts only with head_shape = {needs}, and "
+                f"head_shape is {shape!r}: add --set head_shape={needs}"
+            )
+
+
 def build(scene: Scene, level: str, comm: MPI.Comm, method: str) -> ShoulderModel:
     """Mesh the joint for ``method`` (collective): all bodies, or soft tissues + the scapula."""
+    check_effective(scene)
     values = scene.values()
     params = ShoulderParameters.from_values(values)
     elsewhere = params.part2_level not in ("", level)
@@ -256,7 +280,11 @@ def _mesh(scene: Scene, comm, geometry, sizes, variants, layers) -> dict:
 
 
 def check_bench(scene: Scene, level: str) -> None:
-    """``bench`` compares part 2 with the coupled scapula node by node: one level for both."""
+    """``bench`` compares part 2 with the coupled scapula node by node: one level for both.
+
+    (And the keys of :func:`check_effective`, before either method runs.)
+    """
+    check_effective(scene)
     part2 = scene.values().get("part2_level", "")
     if part2 not in ("", level):
         raise SceneError(

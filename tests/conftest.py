@@ -10,6 +10,8 @@ import gc
 import logging
 from pathlib import Path
 
+# first: a pytest-xdist worker's environment without its controller's MPI (before MPI starts)
+import _xdist_env  # noqa: F401
 import pytest
 
 # the hooks that keep the MPI ranks in step (pytest reads a conftest's hook functions by name)

@@ -28,16 +28,17 @@ demo: setup
 # processes (pytest-xdist; a module's tests sharing a module fixture stay on one worker:
 # tests/conftest.py). Under mpirun the ranks agree on each test's outcome and a rank's failure
 # is printed at once with its rank (tests/_lockstep.py).
-# The tests that start mpirun themselves run in one plain process after it (from an xdist
-# worker their mpirun ended at once with status 1).
+# The tests that start mpirun themselves run in one plain process after it: from an xdist
+# worker, test_lockstep's mpirun ended at once with status 1.
 TEST_WORKERS ?= 2
-OWN_MPIRUN := tests/test_lockstep.py tests/test_stop_guard.py
-OWN_MPIRUN_K := sigterm_under_mpirun or error_on_one_rank_aborts
+OWN_MPIRUN := tests/test_lockstep.py tests/test_stop_guard.py \
+  tests/test_cli.py::test_sigterm_under_mpirun_removes_the_unfinished_output \
+  tests/test_cli.py::test_an_error_on_one_rank_aborts_the_job_instead_of_hanging
 test: setup
 	@t0=$$(date +%s); $(PY) -m pytest -q -rfE --durations=15 -n $(TEST_WORKERS) \
-	  --dist loadgroup $(addprefix --ignore ,$(OWN_MPIRUN)) -k "not ($(OWN_MPIRUN_K))" tests; \
+	  --dist loadgroup $(addprefix --deselect ,$(OWN_MPIRUN)) tests; \
 	  rc=$$?; echo "make test: serial phase ($(TEST_WORKERS) workers) $$(( $$(date +%s) - t0 )) s, exit $$rc"; exit $$rc
-	@t0=$$(date +%s); $(PY) -m pytest -q -rfE $(OWN_MPIRUN) tests/test_cli.py -k "$(OWN_MPIRUN_K) or lockstep or stop_guard"; \
+	@t0=$$(date +%s); $(PY) -m pytest -q -rfE $(OWN_MPIRUN); \
 	  rc=$$?; echo "make test: tests starting mpirun $$(( $$(date +%s) - t0 )) s, exit $$rc"; exit $$rc
 	@t0=$$(date +%s); $(MPIRUN) $(PY) -m mpi4py -m pytest -q -rfE --durations=15 --color=no \
 	  -m mpi -p no:cacheprovider tests; rc=$$?; \

@@ -73,9 +73,13 @@ def plan(scene: Scene, source: Path, settings: list[str]) -> tuple[Scene, str, l
 
 
 def recorded_values(scene: Scene, recorded: dict) -> dict:
-    """The recorded run's parameter values that this scene has (SI)."""
+    """The recorded run's parameter values that this scene has and that differ from it (SI).
+
+    Only those count as given, so a key the run left at the file's value (a prosthesis key
+    of a spherical head) is not taken for a setting of the variants.
+    """
     values = recorded.get("parameters", {})
-    return {k: v for k, v in values.items() if k in scene.parameters}
+    return {k: v for k, v in values.items() if k in scene.parameters and v != scene[k]}
 
 
 def folder_name(i: int, variant: list[str]) -> str:

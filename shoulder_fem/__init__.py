@@ -22,16 +22,28 @@ _EXPORTS = {
     "Result": "shoulder_fem.api",
     "RunFailed": "shoulder_fem.api",
     "run": "shoulder_fem.api",
+    "study": "shoulder_fem.api",
+    "sweep": "shoulder_fem.api",
     "Scene": "shoulder_fem.scene",
     "SceneError": "shoulder_fem.scene",
     "available_scenes": "shoulder_fem.scene",
     "load_scene": "shoulder_fem.scene",
 }
 
-__all__ = ["Result", "RunFailed", "Scene", "SceneError", "available_scenes", "load_scene", "run"]
+__all__ = [
+    "Result",
+    "RunFailed",
+    "Scene",
+    "SceneError",
+    "available_scenes",
+    "load_scene",
+    "run",
+    "study",
+    "sweep",
+]
 
 if TYPE_CHECKING:
-    from shoulder_fem.api import Result, RunFailed, run
+    from shoulder_fem.api import Result, RunFailed, run, study, sweep
     from shoulder_fem.scene import Scene, SceneError, available_scenes, load_scene
 
 

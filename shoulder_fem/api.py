@@ -136,6 +136,7 @@ def run(
         scene = load_scene(scene)
     check_method(method)
     fam = scene_family(scene, (method,))
+    scene = fam.resolved(scene)  # the values it derives, recorded as run
     level = level or scene.default_level
     scene.level(level)  # unknown level → SceneError now
     part1_from = _part1_source(scene, method, level, part1_from)
@@ -225,6 +226,74 @@ def _report_petsc_options(recorder, options: dict, unused: list[str] | None, com
             "PETSc option(s) %s: read by no solver of this run (misspelt?)",
             ", ".join(f"-{k}" for k in unused),
         )
+
+
+def study(
+    scene: Scene | str,
+    settings: list[str],
+    out: str | Path,
+    method: str = "decoupled",
+    level: str | None = None,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+) -> dict:
+    """One whole run of ``method`` per combination of values, any keys (:mod:`.studies`).
+
+    ``settings``: ``key=v1,v2,...`` each, values as ``--set`` takes them (``muscle_alpha=
+    0.06,0.12MPa`` is read as 0.06 Pa and 0.12 MPa: give each value its unit, or none for
+    SI); the variants are all their combinations, each a run folder in ``out`` (a new
+    folder), with ``study.json`` (values, status, CPU and wall time, memory and series of
+    every variant) and ``study.png`` / ``study.pdf``. Every variant is checked before the
+    first is solved. A variant that stops short (``incomplete``) or fails is recorded and the
+    next one runs.
+
+    Returns:
+        The contents of ``study.json``; ``data["finished"]`` is False when a variant did not
+        reach its final angle (the command line then exits 3).
+
+    Raises:
+        SceneError: A malformed setting, an unknown key, a bad value, or ``out`` exists.
+    """
+    from shoulder_fem import studies as st
+
+    if isinstance(scene, str | Path):
+        scene = load_scene(scene)
+    check_method(method)
+    scene_family(scene, (method,))
+    level = level or scene.default_level
+    scene.level(level)
+    variants = st.plan(scene, settings)
+    out = Path(out)
+    if comm.allreduce(out.exists(), op=MPI.LOR):
+        raise SceneError(f"--out {out}: exists already (a study writes a new folder)")
+    _make_parent(out, comm)
+    comm.Barrier()
+    if comm.rank == 0:
+        out.mkdir()
+    comm.Barrier()
+    rows = []
+    for i, (values, scene_v) in enumerate(variants):
+        name = st.folder_name(i, values)
+        logger.info("study: variant %d of %d: %s", i + 1, len(variants), ", ".join(values))
+        try:
+            result = run(scene_v, method, level, out / name, comm)
+        except RunFailed as err:
+            result = err.summary
+        rows.append(st.row(values, name, result.data))
+        logger.info(
+            "study: %s: %s, CPU %.1f s", ", ".join(values), rows[-1]["status"], rows[-1]["cpu_s"]
+        )
+    data = {
+        "scene": scene.name,
+        "method": method,
+        "level": level,
+        "keys": [s.partition("=")[0].strip() for s in settings],
+        "finished": all(r["status"] == "ok" for r in rows),
+        "variants": rows,
+    }
+    if comm.rank == 0:
+        st.write_study(data, out)
+    comm.Barrier()
+    return data
 
 
 def sweep(

@@ -21,7 +21,6 @@ import pytest
 from mpi4py import MPI
 
 from shoulder_fem import api
-from shoulder_fem.meshes.shoulder import geometry_from_values
 from shoulder_fem.scene import load_scene
 
 pytestmark = pytest.mark.mpi  # serial and under mpirun -n 2 (78 s there)
@@ -30,10 +29,9 @@ SHORT = ["final_angle=20deg", "output_angle=10deg"]
 
 
 def _implant(radius_mm: float) -> list[str]:
-    """A prosthetic head of ``radius_mm``, its cartilage ending on the anatomical neck plane."""
-    sets = ["head_shape=prosthetic", f"prosthesis_radius={radius_mm}mm"]
-    g = geometry_from_values(load_scene("shoulder-internal-rotation").with_overrides(sets).values())
-    return [*sets, f"humeral_cartilage_angle={math.degrees(g.neck_plane_cap_angle()):.6f}deg"]
+    """A prosthetic head of ``radius_mm`` and nothing else: its cartilage ends on the
+    anatomical neck plane by default (``families.shoulder.model.resolve``)."""
+    return ["head_shape=prosthetic", f"prosthesis_radius={radius_mm}mm"]
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +56,10 @@ def test_two_head_shapes_give_different_finite_positive_results(runs):
         assert s["series"]["max_pressure"]["x"] == pytest.approx([0.0, 10.0, 20.0])
     # the implant's cap is the neck plane's (68.09 deg by hand, test_shoulder_mesh), the
     # anatomical one 70 deg: measured on each run's mesh
+    # nothing but the radius set: the cap derived from the neck plane, recorded as run
+    # (cos(a) = 8.209 mm / 22 mm by hand, test_shoulder_mesh: a = 68.09 deg)
+    used = math.degrees(summaries["implant R22"]["parameters"]["humeral_cartilage_angle"])
+    assert used == pytest.approx(68.09, abs=0.01)
     caps = [s["probes"]["humeral_cap_half_angle_deg"] for s in summaries.values()]
     assert caps[0] == pytest.approx(70.0, abs=0.5) and caps[1] == pytest.approx(68.1, abs=0.5)
     keys = ("max_pressure", "subscapularis_force", "infraspinatus_force", "scapula_max_von_mises")

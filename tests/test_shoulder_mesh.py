@@ -481,6 +481,28 @@ def test_neck_plane_cap_angle_by_hand():
     assert angle(implant, "prosthesis_offset_posterior=2mm") == pytest.approx(70.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("radius", ["22mm", "23mm", "25.5mm"])
+def test_an_implant_in_its_documented_range_needs_no_other_key(radius):
+    """``head_shape=prosthetic`` and a radius of the doc's 22-25.5 mm, nothing else: the scene
+    as run (``resolve``) ends the implant's cap on the anatomical neck plane (the angle of
+    test_neck_plane_cap_angle_by_hand) and its geometry passes the footprint checks; with
+    the anatomical 70 deg kept, 22 and 23 mm put the subscapularis footprint on the
+    cartilage (refused in one line)."""
+    from shoulder_fem.families.shoulder.model import resolve
+
+    scene = load_scene("shoulder-internal-rotation")
+    given = scene.with_overrides(["head_shape=prosthetic", f"prosthesis_radius={radius}"])
+    run = resolve(given)
+    expected = S.geometry_from_values(given.values()).neck_plane_cap_angle()
+    assert run["humeral_cartilage_angle"] == pytest.approx(expected, abs=1e-12)
+    S.geometry_from_values(run.values()).validate()
+    kept = resolve(given.with_overrides(["humeral_cartilage_angle=70deg"]))
+    assert kept["humeral_cartilage_angle"] == pytest.approx(np.radians(70.0), abs=1e-12)
+    if radius != "25.5mm":
+        with pytest.raises(ValueError, match="footprint runs off the tuberosity"):
+            S.geometry_from_values(kept.values()).validate()
+
+
 def test_implant_radii_the_doc_states_mesh_and_a_larger_one_is_refused(geometry):
     """The prosthesis_radius doc: up to head_radius + 1.5 mm (25.6 mm refused, naming the
     rule), 22 mm meshes with its cartilage ending on the anatomical neck plane: the articular

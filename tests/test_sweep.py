@@ -146,4 +146,4 @@ def test_the_command_line_refuses_a_part1_key_in_one_line(source, tmp_path):
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "part 1 depends on contact_penalty" in lines[0], lines
-    assert "--method decoupled" in lines[0] and not out.exists()
+    assert "shoulder-fem study" in lines[0] and not out.exists()

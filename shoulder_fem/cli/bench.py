@@ -95,6 +95,7 @@ def cmd_bench(args) -> int:
     comm = MPI.COMM_WORLD
     scene, options = prepare(args)
     fam = scene_family(scene)  # both methods, before anything runs
+    scene = fam.resolved(scene)
     level = args.level or scene.default_level
     if fam.check_bench is not None:
         fam.check_bench(scene, level)

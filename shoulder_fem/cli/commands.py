@@ -1,4 +1,4 @@
-"""The scene commands: scenes, run, compare, bench, sweep.
+"""The scene commands: scenes, run, compare, bench, sweep, study.
 
 Each takes the parsed arguments and returns the exit status; input errors are raised as
 ``SceneError`` / ``OutputError`` and a failed solve as :class:`SolverFailure` (``main`` turns
@@ -148,6 +148,34 @@ def cmd_sweep(args) -> int:
             f"(run {row['cpu_s']:.2f} s), largest von Mises {peak:.3f} MPa"
         )
     say(f"sweep: {args.out}/sweep.json, sweep.png")
+    short = [r for r in data["variants"] if r["status"] != "ok"]
+    if short:
+        names = ", ".join(r["folder"] for r in short)
+        raise SolverFailure(f"sweep: {len(short)} variant(s) did not finish: {names}")
+    return 0
+
+
+def cmd_study(args) -> int:
+    """One whole run per combination of the studied values; exit 3 if one did not finish."""
+    from mpi4py import MPI
+
+    from shoulder_fem.api import study
+    from shoulder_fem.scene import load_scene
+
+    scene = load_scene(args.scene)
+    data = study(scene, args.sets, args.out, args.method, args.level, MPI.COMM_WORLD)
+    for row in data["variants"]:
+        values = ", ".join(f"{k}={v}" for k, v in row["values"].items())
+        line = f"{values}: {row['status']}, CPU {row['cpu_s']:.1f} s, wall {row['wall_s']:.1f} s"
+        say(line + (f" ({row['message']})" if row["status"] != "ok" else ""))
+    say(f"study: {args.out}/study.json, study.png, study.pdf")
+    if not data["finished"]:
+        short = [r for r in data["variants"] if r["status"] != "ok"]
+        listed = "; ".join(f"{r['folder']}: {r['message']}" for r in short)
+        raise SolverFailure(
+            f"study: {len(short)} of {len(data['variants'])} variant(s) did not reach the "
+            f"final angle: {listed}"
+        )
     return 0
 
 

@@ -271,19 +271,43 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="a finished decoupled run's output folder (its part 1 is reused)",
     )
+    _add_values_arguments(
+        p,
+        "sweep",
+        "a swept key and its values (repeatable: every combination); only keys part 1 does "
+        "not depend on, e.g. scapula_modulus_factor=0.5,1,2",
+    )
+
+    p = sub.add_parser(
+        "study",
+        help="one whole run per combination of values of any keys (the soft tissues' "
+        "constants, the implant): cost and outputs of every variant",
+    )
+    p.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    p.add_argument("--method", choices=["coupled", "decoupled"], default="decoupled")
+    p.add_argument("--level", default=None, help="mesh level (default: the scene's)")
+    _add_values_arguments(
+        p,
+        "study",
+        "a studied key and its values, each with its unit or in SI (repeatable: every "
+        "combination), e.g. muscle_alpha=0.06MPa,0.12MPa,0.24MPa",
+    )
+
+    add_mesh_parser(sub)
+    return parser
+
+
+def _add_values_arguments(p, command: str, help_set: str) -> None:
+    """``--set KEY=V1,V2,...`` (repeatable) and ``--out`` of a sweep or a study."""
     p.add_argument(
         "--set",
         dest="sets",
         action="append",
         default=[],
         metavar="KEY=V1,V2,...",
-        help="a swept key and its values (repeatable: every combination); only keys part 1 "
-        "does not depend on, e.g. scapula_modulus_factor=0.5,1,2",
+        help=help_set,
     )
-    p.add_argument("--out", type=Path, required=True, help="a new folder for the sweep")
-
-    add_mesh_parser(sub)
-    return parser
+    p.add_argument("--out", type=Path, required=True, help=f"a new folder for the {command}")
 
 
 def pin_threads() -> None:
@@ -375,6 +399,7 @@ def _main(args, started: float, verbosity: int) -> int:
             "compare": commands.cmd_compare,
             "bench": cmd_bench,
             "sweep": commands.cmd_sweep,
+            "study": commands.cmd_study,
             "mesh": cmd_mesh,
         }[args.command](args)
     except (SceneError, OutputError, commands.InputFailure) as err:

@@ -138,9 +138,10 @@ def _shoulder_scene(args):
             f"{scene.source}: scene '{scene.name}' is of family '{scene.family}'; "
             "the mesh command builds 'shoulder' scenes"
         )
-    from shoulder_fem.families.shoulder.model import check_effective
+    from shoulder_fem.families.shoulder.model import check_effective, resolve
 
     check_effective(scene)
+    scene = resolve(scene)
     level = args.level or scene.default_level
     sizes = scene.level(level)
     try:

@@ -80,6 +80,8 @@ class Family(Generic[ModelT]):
             to print (rank 0's; other ranks may return anything); None: the generic one.
         check_bench: ``check_bench(scene, level)`` raises SceneError for a scene that ``bench``
             cannot compare (before anything runs); None: every scene can be.
+        resolve: ``resolve(scene) -> scene`` with the values the family derives from others
+            when they are not given (recorded in the summary as run); None: none.
     """
 
     name: str
@@ -88,3 +90,8 @@ class Family(Generic[ModelT]):
     dofs: Callable[[ModelT], int]
     report: Callable[[BenchReport], str] | None = None
     check_bench: Callable[[Scene, str], None] | None = None
+    resolve: Callable[[Scene], Scene] | None = None
+
+    def resolved(self, scene: Scene) -> Scene:
+        """``scene`` with the family's derived values (:attr:`resolve`)."""
+        return self.resolve(scene) if self.resolve is not None else scene

@@ -15,10 +15,16 @@ from shoulder_fem.io.output import atomic_write_bytes
 METHOD_STYLE = {"coupled": dict(color="C0", lw=2.0), "decoupled": dict(color="C3", lw=1.2, ls="--")}
 
 
-def save_figure(fig, path: Path) -> Path:
-    """Write a figure as PNG atomically (:func:`atomic_write_bytes`) and close it."""
+def save_figure(fig, path: Path, vector: bool = False) -> Path:
+    """Write a figure as PNG atomically (:func:`atomic_write_bytes`) and close it.
+
+    ``vector``: a PDF beside it too (the same name, ``.pdf``), for print.
+    """
     path = Path(path)
     atomic_write_bytes(path, lambda f: fig.savefig(f, format="png", dpi=150, bbox_inches="tight"))
+    if vector:
+        pdf = path.with_suffix(".pdf")
+        atomic_write_bytes(pdf, lambda f: fig.savefig(f, format="pdf", bbox_inches="tight"))
     plt.close(fig)
     return path
 

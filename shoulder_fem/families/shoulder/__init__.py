@@ -3,7 +3,13 @@
 from shoulder_fem.families.base import Family
 from shoulder_fem.families.shoulder.coupled import run_coupled
 from shoulder_fem.families.shoulder.decoupled import run_decoupled
-from shoulder_fem.families.shoulder.model import ShoulderModel, build, check_bench, dofs
+from shoulder_fem.families.shoulder.model import (
+    ShoulderModel,
+    build,
+    check_bench,
+    dofs,
+    resolve,
+)
 from shoulder_fem.families.shoulder.report import bench_report
 
 __all__ = ["FAMILY", "ShoulderModel"]
@@ -15,4 +21,5 @@ FAMILY = Family(
     dofs=dofs,
     report=bench_report,
     check_bench=check_bench,
+    resolve=resolve,
 )

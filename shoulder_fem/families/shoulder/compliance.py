@@ -161,7 +161,7 @@ class EnergyShare:
     @classmethod
     def of_model(cls, u: dolfinx.fem.Function, cell_tags, params) -> EnergyShare:
         """The share for the shoulder's cartilage law (``ShoulderParameters`` ``params``)."""
-        law = soft_tissue_laws(params)[0]
+        law = soft_tissue_laws(params, u.function_space.mesh)[0]
         if params.incompressible_cartilage:
             law = mixed_law(law, params)
         return cls(u, cell_tags, law, params.quadrature())

@@ -29,7 +29,7 @@ from shoulder_fem.families.shoulder.measures import Probe, VonMises
 from shoulder_fem.families.shoulder.model import ShoulderModel, displacement
 from shoulder_fem.families.shoulder.outputs import save_results, unknowns
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
-from shoulder_fem.families.shoulder.trial import SoftTissueCheck
+from shoulder_fem.families.shoulder.trial import SoftTissueCheck, trial_i1bar_max
 from shoulder_fem.families.shoulder.twist import fitted_twist
 from shoulder_fem.forms import materials
 from shoulder_fem.forms import virtual_power as vp
@@ -55,7 +55,9 @@ def run_coupled(model: ShoulderModel, run: RunContext) -> None:
     actuator = RigidBody("actuator", origin, prescribed=True)
     bodies.append(actuator)
     ties.append(Tie("actuator", "subscapularis_origin"))
-    check = SoftTissueCheck(u, ct_, p.trial_check, p.quadrature_degree)
+    check = SoftTissueCheck(
+        u, ct_, p.trial_check, p.quadrature_degree, trial_i1bar_max(p.muscle_beta)
+    )
     # each bone's share of every Newton step turns by a finite rotation (on the paper's supports
     # the humerus swings by tens of degrees and the scapula turns with it: a linear step
     # strains the stiff bone; engine/rigid_system/corotation.py; with the cartilages in the

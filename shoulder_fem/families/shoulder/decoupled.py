@@ -42,7 +42,7 @@ from shoulder_fem.families.shoulder.outputs import UNCORRECTED, save_npz, save_r
 from shoulder_fem.families.shoulder.part2 import SurfaceForces, run_part2
 from shoulder_fem.families.shoulder.reuse import load_part1
 from shoulder_fem.families.shoulder.stepping import SNES_OPTIONS, Stepping, run_steps
-from shoulder_fem.families.shoulder.trial import SoftTissueCheck
+from shoulder_fem.families.shoulder.trial import SoftTissueCheck, trial_i1bar_max
 from shoulder_fem.families.shoulder.twist import rigid_twist
 from shoulder_fem.io.resources import release_memory
 from shoulder_fem.io.results import Recorder
@@ -309,7 +309,9 @@ class Part1:
         actuator = RigidBody("actuator", origin, prescribed=True)
         self.springs = part1_springs(sm.bone_surface, sm.bone_surface_tags, layout, p.spring_length)
         ties, tied = part1_ties(ft, ct_, p)
-        check = SoftTissueCheck(u, ct_, p.trial_check, p.quadrature_degree)
+        check = SoftTissueCheck(
+            u, ct_, p.trial_check, p.quadrature_degree, trial_i1bar_max(p.muscle_beta)
+        )
         self.system = system = RigidSystem(
             [humerus, scapula, actuator],
             self.springs,

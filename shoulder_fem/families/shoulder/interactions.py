@@ -13,6 +13,7 @@ from __future__ import annotations
 import dolfinx
 import numpy as np
 import ufl
+from petsc4py import PETSc
 
 from shoulder_fem.engine.contact import Contact, ContactPair, MeshSurface
 from shoulder_fem.engine.mean_dilatation import MeanDilatation
@@ -242,24 +243,43 @@ def joint_contact(V, u, facet_tags, params: ShoulderParameters) -> Contact:
 # ---- materials and forms --------------------------------------------------------------------
 
 
-def soft_tissue_laws(params: ShoulderParameters) -> tuple:
+def soft_tissue_laws(params: ShoulderParameters, mesh: dolfinx.mesh.Mesh) -> tuple:
     """(cartilage law, muscle law) of ``soft_tissue_formulation``, nearly incompressible.
 
-    An incompressible body's law (Table I) has kappa = ``soft_tissue_bulk_ratio`` x its shear
-    modulus (the volumetric part goes to
+    The constants are the scene's (``cartilage_c10``, ``muscle_alpha``, ``muscle_beta``; Table
+    I by default), each a :class:`dolfinx.fem.Constant` on ``mesh``, so that other values
+    compile no form. An incompressible body's law (Table I) has kappa =
+    ``soft_tissue_bulk_ratio`` x its shear modulus (the volumetric part goes to
     :class:`~shoulder_fem.engine.mean_dilatation.MeanDilatation`); a compressible one is the
     earlier model's: the cartilage's nu = 0.4, the muscle's 0.49. ``incompressible`` makes both
     incompressible, ``incompressible-cartilage`` the cartilages only, ``compressible`` neither.
     """
-    cart, musc = materials.NeoHookean.cartilage(), materials.VerondaWestmann.muscle()
+    c10, alpha, beta = params.cartilage_c10, params.muscle_alpha, params.muscle_beta
     ratio = params.soft_tissue_bulk_ratio
     if params.incompressible_cartilage:
-        cart = materials.NeoHookean(cart.c10, ratio * cart.small_strain_moduli()[0])
+        kappa_c = ratio * 2 * c10
+    else:  # nu = 0.4 kept: E/(3 (1 - 2 nu)) at E = 10 MPa, scaled with C10
+        nu = materials.CARTILAGE_NU
+        kappa_c = materials.CARTILAGE_YOUNGS_MODULUS / (3 * (1 - 2 * nu))
+        kappa_c *= c10 / materials.CARTILAGE_C10
+    mu = alpha * beta
     if params.incompressible_muscles:
-        musc = materials.VerondaWestmann(
-            musc.alpha, musc.beta, ratio * musc.small_strain_moduli()[0]
-        )
+        kappa_m = ratio * mu
+    else:
+        nu = materials.MUSCLE_NU
+        kappa_m = 2 * mu * (1 + nu) / (3 * (1 - 2 * nu))
+
+    def constant(value: float) -> dolfinx.fem.Constant:
+        return dolfinx.fem.Constant(mesh, PETSc.ScalarType(value))
+
+    cart = materials.NeoHookean(constant(c10), constant(kappa_c))
+    musc = materials.VerondaWestmann(constant(alpha), constant(beta), constant(kappa_m))
     return cart, musc
+
+
+def value_of(x) -> float:
+    """The number a law's constant holds (a :class:`dolfinx.fem.Constant` or a number)."""
+    return float(x.value) if isinstance(x, dolfinx.fem.Constant) else float(x)
 
 
 def mixed_law(law, params: ShoulderParameters) -> materials.Isochoric:
@@ -269,6 +289,8 @@ def mixed_law(law, params: ShoulderParameters) -> materials.Isochoric:
     shear modulus (:class:`~forms.materials.Isochoric`).
     """
     ratio = params.soft_tissue_pointwise_bulk_ratio
+    if not ratio:
+        return materials.Isochoric(law)
     return materials.Isochoric(law, ratio * law.small_strain_moduli()[0])
 
 
@@ -282,7 +304,7 @@ def soft_tissue_residual(
         mean-dilatation terms of those bodies (P2/P0: their residual is in the form; the solver
         adds their tangent), else ``None`` (pure P2 displacement).
     """
-    cart, musc = soft_tissue_laws(params)
+    cart, musc = soft_tissue_laws(params, u.function_space.mesh)
     cartilages = [(S.HUMERAL_CARTILAGE, cart), (S.GLENOID_CARTILAGE, cart)]
     muscles = [(m, musc) for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS)]
     mixed = (cartilages if params.incompressible_cartilage else []) + (
@@ -295,7 +317,7 @@ def soft_tissue_residual(
     volumetric = MeanDilatation(
         u,
         cell_tags,
-        {b.id: law.bulk_modulus for b, law in mixed},
+        {b.id: value_of(law.bulk_modulus) for b, law in mixed},
         dx,
         form_compiler_params=params.quadrature(),
         pressure=params.soft_tissue_pressure,
@@ -320,7 +342,7 @@ def muscle_forms(u, w, dx, params: ShoulderParameters, volumetric=None) -> dict:
     With incompressible muscles the muscle's mean-dilatation part is in ``volumetric``
     (:func:`soft_tissue_residual`'s): call ``volumetric.update()`` before assembling.
     """
-    _, musc = soft_tissue_laws(params)
+    _, musc = soft_tissue_laws(params, u.function_space.mesh)
     out = {}
     for m in (S.SUBSCAPULARIS, S.SUPRASPINATUS, S.INFRASPINATUS):
         if not params.incompressible_muscles:

@@ -31,6 +31,7 @@ __all__ = [
     "ShoulderParameters",
     "build",
     "check_bench",
+    "resolve",
     "displacement",
     "dofs",
     "head_tags",
@@ -64,6 +65,9 @@ class ShoulderParameters:
     muscle_contact_depth: float
     muscle_contact_smoothing: float
     contact_quadrature: int
+    cartilage_c10: float
+    muscle_alpha: float
+    muscle_beta: float
     soft_tissue_formulation: str
     soft_tissue_bulk_ratio: float
     soft_tissue_pressure: str
@@ -190,6 +194,22 @@ _HEAD_SHAPE_KEYS = {
     "prosthesis_offset_posterior": "prosthetic",
     "head_ratio": "ellipsoidal",
 }
+
+
+def resolve(scene: Scene) -> Scene:
+    """The scene as run: an implant's cap ends on the anatomical neck plane unless given.
+
+    With ``head_shape = prosthetic`` and no ``humeral_cartilage_angle`` set, the implant's
+    articular cap takes :meth:`~meshes.shoulder.ShoulderGeometry.neck_plane_cap_angle` (the
+    surgeon's cut of the anatomical head, 70 deg, on the implant's own sphere), which keeps the
+    insertion footprints off the cartilage for the documented implant radii; the value used is
+    the one recorded.
+    """
+    if scene["head_shape"] != "prosthetic" or "humeral_cartilage_angle" in scene.overridden:
+        return scene
+    angle = S.geometry_from_values(scene.values()).neck_plane_cap_angle()
+    where = f"{scene.where('prosthesis_radius')} (the implant's cap on the neck plane)"
+    return scene.with_values(where, humeral_cartilage_angle=angle)
 
 
 def check_effective(scene: Scene) -> None:

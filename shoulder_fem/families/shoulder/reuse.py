@@ -77,8 +77,10 @@ def check_source(scene: Scene, level: str, source: dict, where: str) -> None:
         raise SceneError(f"{where}: a run of scene {source.get('scene')!r}, not {scene.name!r}")
     if source.get("level") != level:
         raise SceneError(f"{where}: a run at level {source.get('level')!r}, not {level!r}")
-    # runs made before part1_bones existed had the paper's rigid part 1
-    recorded = {"part1_bones": "rigid"} | source.get("parameters", {})
+    # runs made before part1_bones and the soft-tissue constants were keys had the paper's
+    # rigid part 1 and Table I's constants
+    before = {"part1_bones": "rigid", "cartilage_c10": 1.79e6, "muscle_alpha": 0.12e6}
+    recorded = before | {"muscle_beta": 1.0} | source.get("parameters", {})
     if recorded["part1_bones"] != "rigid":
         raise SceneError(
             f"{where}: its part 1 is part1_bones = {recorded['part1_bones']!r}, which depends "

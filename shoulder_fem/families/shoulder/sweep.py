@@ -52,9 +52,9 @@ def plan(scene: Scene, source: Path, settings: list[str]) -> tuple[Scene, str, l
             base.with_overrides([text])  # the scene's own message for an unknown key
         if key not in PART2_KEYS:
             raise SceneError(
-                f"--set {text}: part 1 depends on {key}, so a sweep cannot reuse it; run the "
-                f"decoupled method for each value (shoulder-fem run {scene.name} --method "
-                f"decoupled --set {key}=...). A sweep takes {', '.join(PART2_KEYS)}"
+                f"--set {text}: part 1 depends on {key}, so a sweep cannot reuse it; study "
+                f"it with a whole run per value (shoulder-fem study {scene.name} --set "
+                f"{text}). A sweep takes {', '.join(PART2_KEYS)}"
             )
         axes.append([f"{key}={v.strip()}" for v in raw.split(",")])
     if not axes:

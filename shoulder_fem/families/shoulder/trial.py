@@ -32,11 +32,21 @@ from shoulder_fem.forms.kinematics import (
 )
 from shoulder_fem.meshes import shoulder as S
 
-__all__ = ["TRIAL_CHECKS", "TRIAL_I1BAR_MAX", "SoftTissueCheck"]
+__all__ = ["TRIAL_CHECKS", "TRIAL_I1BAR_MAX", "SoftTissueCheck", "trial_i1bar_max"]
 
-#: The largest I1bar allowed in a Newton trial state (beta (I1bar - 3) = 100 for the muscles:
-#: an exponential factor of 3e43, still far from overflowing).
+#: The largest I1bar allowed in a Newton trial state at the muscles' beta = 1 (beta (I1bar - 3)
+#: = 100: an exponential factor of 3e43, still far from overflowing).
 TRIAL_I1BAR_MAX = 103.0
+
+
+def trial_i1bar_max(beta: float) -> float:
+    """The trial bound on I1bar for the muscles' Veronda-Westmann ``beta``.
+
+    :data:`TRIAL_I1BAR_MAX` up to beta = 1; above, beta (I1bar - 3) = 100, the same largest
+    exponential factor.
+    """
+    return 3.0 + (TRIAL_I1BAR_MAX - 3.0) / max(float(beta), 1.0)
+
 
 #: The reference points of the check: a tetrahedron's vertices, edge midpoints and centroid.
 _VERTICES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
@@ -60,6 +70,7 @@ class SoftTissueCheck:
             (the volume forms' points of degree ``degree``). The recorded ranges
             (:meth:`j_range`, :meth:`i1bar_max`) are at :data:`POINTS` either way.
         degree: The volume forms' quadrature degree (``quadrature`` only).
+        i1bar_max: The largest I1bar of an admissible trial state (:func:`trial_i1bar_max`).
     """
 
     def __init__(
@@ -68,11 +79,13 @@ class SoftTissueCheck:
         cell_tags: dolfinx.mesh.MeshTags,
         guard: str = "nodes",
         degree: int = 4,
+        i1bar_max: float = TRIAL_I1BAR_MAX,
     ):
         if guard not in TRIAL_CHECKS:
             raise ValueError(f"trial_check = {guard!r}: must be one of {', '.join(TRIAL_CHECKS)}")
         mesh = u.function_space.mesh
         self.comm = mesh.comm
+        self.i1bar_max_allowed = float(i1bar_max)
         n_owned = mesh.topology.index_map(3).size_local
         soft = np.isin(cell_tags.values, [m.id for m in S.SOFT]) & (cell_tags.indices < n_owned)
         self.cells = np.ascontiguousarray(cell_tags.indices[soft], dtype=np.int32)
@@ -102,7 +115,7 @@ class SoftTissueCheck:
         return lo, hi
 
     def i1bar_max(self) -> float:
-        """The largest I1bar over all ranks (3 undeformed; the trial bound is TRIAL_I1BAR_MAX)."""
+        """The largest I1bar over all ranks (3 undeformed; the trial bound is ``i1bar_max``)."""
         _, i1bar = self.values()
         return self.comm.allreduce(float(i1bar.max()) if len(i1bar) else 3.0, op=MPI.MAX)
 
@@ -110,7 +123,7 @@ class SoftTissueCheck:
         """Whether the current state may be a Newton trial state (same on every rank)."""
         J, i1bar = self.values(guard=True)
         with np.errstate(invalid="ignore"):
-            ok = bool(np.all((J > 0.0) & (i1bar < TRIAL_I1BAR_MAX)))
+            ok = bool(np.all((J > 0.0) & (i1bar < self.i1bar_max_allowed)))
         return bool(self.comm.allreduce(ok, op=MPI.LAND))
 
     def __call__(self) -> bool:

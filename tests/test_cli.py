@@ -216,6 +216,41 @@ def test_form_compilation_is_quiet(tmp_path: Path, verbosity: str) -> None:
         assert "INFO:root" not in out.stderr, out.stderr
 
 
+def test_a_second_run_with_other_geometry_and_constants_compiles_no_form(tmp_path: Path):
+    """The shoulder's values enter the forms as constants and fields, not as numbers in the
+    generated code: after a 1-deg decoupled run of the defaults (which puts its forms in the
+    form cache), a run with another head and glenoid, other soft-tissue constants, contact
+    penalty, supports and bone modulus compiles nothing: at -vv every compiled module is one
+    ``building 'libffcx_...`` line (test_form_compilation_is_quiet), and there is none."""
+    base = ["run", "shoulder-internal-rotation", "--method", "decoupled", "--level", "coarse"]
+    base += ["--set", "final_angle=1deg"]
+    other = [
+        "head_radius=25mm",
+        "glenoid_radius=27.3mm",
+        "muscle_alpha=0.06MPa",
+        "muscle_beta=1.5",
+        "cartilage_c10=2.5MPa",
+        "contact_penalty=150MPa/mm",
+        "scapula_spring_stiffness=150N/mm",
+        "scapula_modulus_factor=2",
+    ]
+    logs = []
+    for name, sets in (("defaults", []), ("other", other)):
+        args = [*base, *(x for s in sets for x in ("--set", s)), "--out", str(tmp_path / name)]
+        done = subprocess.run(
+            [sys.executable, "-m", "shoulder_fem.cli", "-vv", *args],
+            capture_output=True,
+            text=True,
+            env=dict(os.environ, OMP_NUM_THREADS="1"),
+        )
+        assert done.returncode == 0, done.stderr[-3000:]
+        logs.append([ln for ln in done.stderr.splitlines() if "building 'libffcx_" in ln])
+    summary = json.loads((tmp_path / "other" / "summary.json").read_text())
+    assert summary["parameters"]["muscle_alpha"] == 0.06e6  # the run had the other values
+    assert summary["parameters"]["head_radius"] == pytest.approx(0.025)
+    assert logs[1] == [], logs[1]
+
+
 def _terminated_while_writing(
     args: list[str], folder: Path, pattern: str, settle: float = 0.0, sig=signal.SIGTERM
 ) -> tuple[int, str]:

@@ -29,6 +29,8 @@ from shoulder_fem.families.shoulder.model import ShoulderParameters
 from shoulder_fem.forms import virtual_power as vp
 from shoulder_fem.scene import SceneError, load_scene
 
+pytestmark = pytest.mark.mpi  # serial and under mpirun -n 2 (seconds)
+
 STRETCH = 1.15
 
 

@@ -117,8 +117,9 @@ class FloatingForms:
         #: Y = X − X_G at the local + ghost nodes, (n, 3) (m).
         self.Y_nodes = V.tabulate_dof_coordinates() - centre
         X = ufl.SpatialCoordinate(mesh)
-        #: Y = X − X_G as a UFL vector (m).
-        self.Y = X - ufl.as_vector(centre.tolist())
+        #: Y = X − X_G as a UFL vector (m); X_G a constant, so that another body's centre
+        #: compiles no new form.
+        self.Y = X - constant(mesh, centre)
         x1 = self.x_g + self.R * (self.Y + self.u) + self.z
         acc = 2 * (x1 - self.x_n - self.dt * self.v_n) / self.dt**2
         F_n, F_1 = ufl.grad(self.x_n), ufl.grad(x1)

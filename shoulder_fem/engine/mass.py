@@ -51,7 +51,7 @@ def mass_properties(mesh: dolfinx.mesh.Mesh, density, dx: ufl.Measure) -> MassPr
         raise ValueError(f"mass_properties: the body has no mass ({m} kg)")
     x = ufl.SpatialCoordinate(mesh)
     centre = np.array([integral(f) for f in rigid_body.first_moment(density, x, dx)]) / m
-    gm = x - ufl.as_vector(centre.tolist())
+    gm = x - dolfinx.fem.Constant(mesh, centre)  # a constant: another body compiles nothing
     rows = rigid_body.inertia_tensor(density, gm, dx)
     inertia = np.array([[integral(f) for f in row] for row in rows])
     return MassProperties(m, centre, 0.5 * (inertia + inertia.T))

@@ -186,7 +186,9 @@ class FrameInertia:
         self.inv_dt = dolfinx.fem.Constant(mesh, 0.0)
         self.relief_a = dolfinx.fem.Constant(mesh, np.zeros(3))
         self.relief_alpha = dolfinx.fem.Constant(mesh, np.zeros(3))
-        self.r = r = ufl.SpatialCoordinate(mesh) - ufl.as_vector(ref)
+        # the reference point as a constant: another geometry compiles no new form
+        self.ref = dolfinx.fem.Constant(mesh, np.asarray(ref, dtype=PETSc.ScalarType))
+        self.r = r = ufl.SpatialCoordinate(mesh) - self.ref
         om, dom = self.om, self.dom
         self.a_frame = self.a0 + ufl.cross(dom, r) + ufl.cross(om, ufl.cross(om, r))
         self.a_cor = 2 * ufl.cross(om, (u - u_prev) * self.inv_dt)

@@ -106,99 +106,95 @@ def _glenoid_triangulation(xy: np.ndarray) -> mtri.Triangulation | None:
     return tri
 
 
-def _smooth_map(tri: mtri.Triangulation, values: np.ndarray, subdiv: int = 3):
-    """The nodal ``values`` on ``tri`` refined ``subdiv`` times by a C1 cubic interpolant.
-
-    Piecewise-linear contours between 13 nodes (the glenoid at ``coarse``) draw the mesh, not
-    the field; the cubic (matplotlib's "geom" kind) passes through the nodal values and is
-    clipped to their range (it can overshoot between them).
-    """
-    interp = mtri.CubicTriInterpolator(tri, values, kind="geom")
-    fine, smooth = mtri.UniformTriRefiner(tri).refine_field(
-        values, triinterpolator=interp, subdiv=subdiv
-    )
-    smooth = np.nan_to_num(np.ma.filled(smooth, 0.0), nan=0.0)
-    return fine, np.clip(smooth, values.min(), values.max())
+#: Font sizes of the report's figures: they print at a journal's double column (7 in).
+PRINT_STYLE = {"font.size": 7, "axes.titlesize": 7, "legend.fontsize": 6}
 
 
 def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
+    """Fig. 2: the glenoid's nodal pressure every 10 deg, both methods, on one scale.
+
+    One colour scale in MPa for every angle and both methods (a square-root scale, so that
+    the low angles' 0.05 MPa show beside 60 deg's 2 MPa), the nodal values joined linearly on
+    the glenoid's triangulation (no smoothing beyond the nodes, which are dotted).
+    """
+    from matplotlib.colors import PowerNorm
+
     angles = _map_angles(list(runs.values()))
     ncols = max(len(angles), 1)
-    # one scale per angle, shared by both methods: a single scale over all angles left the
-    # low angles blank (0.002 against 0.5 MPa)
-    col_max = {a: 0.0 for a in angles}
+    top = 0.0
     xy: dict[str, np.ndarray] = {}
     for m, r in runs.items():
         p = r.arrays.get("glenoid_pressure")
         for a in angles:
             i = angle_index(r.angles, a)
             if i is not None and p is not None and p.size:
-                col_max[a] = max(col_max[a], float(np.max(p[i])) * MPA)
+                top = max(top, float(np.max(p[i])) * MPA)
         xy[m] = (
             glenoid_plane_coordinates(
                 r.arrays["glenoid_points"], r.arrays["glenoid_centre"], r.arrays["glenoid_axis"]
             )
             * 1e3
         )
-    levels = np.linspace(0.0, 100.0, 21)  # % of the angle's maximum
-    levels[-1] += 1e-9  # the maximum itself inside the top band
+    top = top if top > 0 else 1.0
+    norm = PowerNorm(0.5, vmin=0.0, vmax=top)
+    levels = np.linspace(0.0, 1.0, 21) ** 2 * top  # equal steps of the square-root scale
+    levels[-1] *= 1 + 1e-9  # the maximum itself inside the top band
     cmap = plt.get_cmap("YlOrRd")
     all_xy = np.concatenate([v for v in xy.values() if len(v)] or [np.zeros((1, 2))])
     lo, hi = all_xy.min(axis=0), all_xy.max(axis=0)
     pad = 0.05 * max(float(np.max(hi - lo)), 1e-6)
-    fig, axes = plt.subplots(
-        2,
-        ncols,
-        figsize=(1.9 * ncols + 1.6, 5.0),
-        squeeze=False,
-        sharex=True,
-        sharey=True,
-        layout="constrained",
-    )
-    mappable = None
-    for row, (m, r) in enumerate(runs.items()):
-        tri = _glenoid_triangulation(xy[m])
-        for col, a in enumerate(angles):
-            ax = axes[row, col]
-            ax.set_aspect("equal")
-            ax.set_xlim(lo[0] - pad, hi[0] + pad)
-            ax.set_ylim(lo[1] - pad, hi[1] + pad)
-            vmax = col_max[a] if col_max[a] > 0 else 1.0
-            if row == 0:
-                ax.set_title(f"{a:g}°\nmax {col_max[a]:.3g} MPa", fontsize=9)
-            if col == 0:
-                ax.set_ylabel(f"{m}\nsuperior (mm)")
-            if row == 1:
-                ax.set_xlabel("anterior (mm)")
-            i = angle_index(r.angles, a)
-            ax.plot(xy[m][:, 0], xy[m][:, 1], ".", ms=2.5, color="0.45")  # the nodes
-            if i is None:
-                ax.text(
-                    0.5,
-                    0.5,
-                    "not reached",
-                    transform=ax.transAxes,
-                    ha="center",
-                    va="center",
-                    color="0.4",
-                    fontsize=9,
-                )
-                continue
-            p = 100.0 * np.clip(r.arrays["glenoid_pressure"][i] * MPA / vmax, 0.0, 1.0)
-            if tri is not None:
-                mappable = ax.tricontourf(*_smooth_map(tri, p), levels=levels, cmap=cmap)
-            else:
-                mappable = ax.scatter(
-                    xy[m][:, 0], xy[m][:, 1], c=p, s=6, cmap=cmap, vmin=0, vmax=100
-                )
-    if mappable is not None:
-        label = "contact pressure (% of the angle's maximum, both methods)"
-        fig.colorbar(mappable, ax=axes, shrink=0.85, label=label)
-    fig.suptitle(
-        "Glenoid contact pressure (view along the glenoid axis): the nodal values (dots), "
-        "interpolated between them by C1 cubics"
-    )
-    save_figure(fig, path)
+    with plt.rc_context(PRINT_STYLE):
+        fig, axes = plt.subplots(
+            2,
+            ncols,
+            figsize=(min(7.0, 1.0 * ncols + 1.2), 3.4),
+            squeeze=False,
+            sharex=True,
+            sharey=True,
+            layout="constrained",
+        )
+        mappable = None
+        for row, (m, r) in enumerate(runs.items()):
+            tri = _glenoid_triangulation(xy[m])
+            for col, a in enumerate(angles):
+                ax = axes[row, col]
+                ax.set_aspect("equal")
+                ax.set_xlim(lo[0] - pad, hi[0] + pad)
+                ax.set_ylim(lo[1] - pad, hi[1] + pad)
+                i = angle_index(r.angles, a)
+                if row == 0:
+                    ax.set_title(f"{a:g}°")
+                if col == 0:
+                    ax.set_ylabel(f"{m}\nsuperior [mm]")
+                if row == 1:
+                    ax.set_xlabel("anterior [mm]")
+                ax.plot(xy[m][:, 0], xy[m][:, 1], ".", ms=1.5, color="0.45")  # the nodes
+                if i is None:
+                    ax.text(
+                        0.5,
+                        0.5,
+                        "not reached",
+                        transform=ax.transAxes,
+                        ha="center",
+                        va="center",
+                        color="0.4",
+                    )
+                    continue
+                p = np.clip(r.arrays["glenoid_pressure"][i] * MPA, 0.0, None)
+                ax.text(0.03, 0.03, f"max {p.max():.2g} MPa", transform=ax.transAxes, fontsize=6)
+                if tri is not None:
+                    mappable = ax.tricontourf(tri, p, levels=levels, cmap=cmap, norm=norm)
+                else:
+                    mappable = ax.scatter(xy[m][:, 0], xy[m][:, 1], c=p, s=6, cmap=cmap, norm=norm)
+        if mappable is not None:
+            bar = fig.colorbar(mappable, ax=axes, shrink=0.85)
+            bar.set_label("contact pressure [MPa] (square-root scale)")
+            bar.set_ticks([t for t in (0, 0.01, 0.05, 0.1, 0.25, 0.5, 1, 2, 4, 8) if t <= top])
+        fig.suptitle(
+            "Glenoid contact pressure, viewed along the glenoid axis: the nodal values (dots), "
+            "joined linearly"
+        )
+        save_figure(fig, path, vector=True)
 
 
 def _plot_max_pressure(runs: dict[str, RunData], path: Path) -> None:
@@ -211,7 +207,7 @@ def _plot_max_pressure(runs: dict[str, RunData], path: Path) -> None:
     ax.set_title("Maximum glenoid contact pressure")
     ax.grid(alpha=0.3)
     ax.legend()
-    save_figure(fig, path)
+    save_figure(fig, path, vector=True)
 
 
 def _plot_muscle_forces(runs: dict[str, RunData], path: Path) -> None:
@@ -241,7 +237,7 @@ def _plot_muscle_forces(runs: dict[str, RunData], path: Path) -> None:
     ax.set_title("Muscle forces at the scapular footprints")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=2)
-    save_figure(fig, path)
+    save_figure(fig, path, vector=True)
 
 
 def _plot_section(runs: dict[str, RunData], path: Path) -> dict[str, int]:
@@ -303,7 +299,7 @@ def _plot_section(runs: dict[str, RunData], path: Path) -> dict[str, int]:
     if coll is not None:
         fig.colorbar(coll, ax=axes[0].tolist(), shrink=0.9, label="von Mises stress (MPa)")
     fig.suptitle("Von Mises stress in the horizontal section of the scapula")
-    save_figure(fig, path)
+    save_figure(fig, path, vector=True)
     return {m: len(s[0]) for m, s in sections.items()}
 
 
@@ -339,7 +335,7 @@ def _plot_von_mises(
     ax.set_title(f"Nodal von Mises stress ({angles})" + (f"\n{note}" if note else ""), fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    save_figure(fig, scatter)
+    save_figure(fig, scatter, vector=True)
     _plot_von_mises_histogram(c, d, angles, note, hist)
 
 
@@ -377,7 +373,7 @@ def _plot_von_mises_histogram(c: np.ndarray, d: np.ndarray, angles: str, note, h
         f"Nodal von Mises differences ({angles})" + (f"\n{note}" if note else ""), fontsize=9
     )
     fig.tight_layout()
-    save_figure(fig, hist)
+    save_figure(fig, hist, vector=True)
 
 
 def _histogram(ax, values: np.ndarray, colour: str, label: str, weights=None) -> None:
@@ -414,7 +410,7 @@ def _plot_von_mises_by_angle(metrics: dict[str, Any], path: Path) -> None:
         ax.set_title("no von Mises series in these runs", fontsize=9)
     fig.suptitle("Nodal von Mises stress at every output angle, decoupled against coupled")
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, vector=True)
 
 
 def _plot_resources(table: dict[str, dict[str, Any]], path: Path) -> None:
@@ -452,4 +448,4 @@ def _plot_resources(table: dict[str, dict[str, Any]], path: Path) -> None:
         ax.margins(y=0.15)
     fig.suptitle("Resources (sums over ranks; part figures are the stages of the decoupled run)")
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, vector=True)

@@ -166,7 +166,8 @@ ALLOWED = {
     "engine": {"engine", "forms", "meshes"},
     "io": {"io", "forms", "meshes"},
     "families": {"families", "engine", "io", "forms", "meshes", "scene", "units"},
-    "api": {"api", "families", "io", "engine", "scene", "units"},
+    "studies": {"studies", "families", "io", "scene"},
+    "api": {"api", "studies", "families", "io", "engine", "scene", "units"},
     "cli": {"cli", "api", "families", "io", "engine", "scene", "meshes", "units"},
 }
 

@@ -110,17 +110,8 @@ def _glenoid_triangulation(xy: np.ndarray) -> mtri.Triangulation | None:
 PRINT_STYLE = {"font.size": 7, "axes.titlesize": 7, "legend.fontsize": 6}
 
 
-def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
-    """Fig. 2: the glenoid's nodal pressure every 10 deg, both methods, on one scale.
-
-    One colour scale in MPa for every angle and both methods (a square-root scale, so that
-    the low angles' 0.05 MPa show beside 60 deg's 2 MPa), the nodal values joined linearly on
-    the glenoid's triangulation (no smoothing beyond the nodes, which are dotted).
-    """
-    from matplotlib.colors import PowerNorm
-
-    angles = _map_angles(list(runs.values()))
-    ncols = max(len(angles), 1)
+def _glenoid_views(runs: dict[str, RunData], angles: list[float]) -> tuple[dict, float]:
+    """Each run's glenoid nodes in the glenoid's plane (mm) and the largest pressure (MPa)."""
     top = 0.0
     xy: dict[str, np.ndarray] = {}
     for m, r in runs.items():
@@ -135,6 +126,21 @@ def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
             )
             * 1e3
         )
+    return xy, top
+
+
+def _plot_pressure_maps(runs: dict[str, RunData], path: Path) -> None:
+    """Fig. 2: the glenoid's nodal pressure every 10 deg, both methods, on one scale.
+
+    One colour scale in MPa for every angle and both methods (a square-root scale, so that
+    the low angles' 0.05 MPa show beside 60 deg's 2 MPa), the nodal values joined linearly on
+    the glenoid's triangulation (no smoothing beyond the nodes, which are dotted).
+    """
+    from matplotlib.colors import PowerNorm
+
+    angles = _map_angles(list(runs.values()))
+    ncols = max(len(angles), 1)
+    xy, top = _glenoid_views(runs, angles)
     top = top if top > 0 else 1.0
     norm = PowerNorm(0.5, vmin=0.0, vmax=top)
     levels = np.linspace(0.0, 1.0, 21) ** 2 * top  # equal steps of the square-root scale

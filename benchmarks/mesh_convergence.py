@@ -27,7 +27,7 @@ import numpy as np
 
 from shoulder_fem.io.convergence import CONVERGED_GCI, SETTLED_CHANGE, gci
 from shoulder_fem.io.output import atomic_write_bytes, atomic_write_json
-from shoulder_fem.io.plots import plt, save_figure
+from shoulder_fem.io.plots import PRINT_STYLE, plt, save_figure
 
 LEVELS = ("paper", "medium", "coarse")  # finest first
 RESULTS = Path(__file__).parent / "results"
@@ -62,11 +62,12 @@ def _series(summary: dict, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def study(folders: list[Path]) -> dict:
     """Every output's convergence per method and angle from the three bench folders."""
-    summaries = {}
+    summaries, sources = {}, {}
     for folder in folders:
         for method in METHODS:
             s = json.loads((folder / f"{method}_summary.json").read_text())
             summaries[(s["level"], method)] = s
+            sources[f"{s['level']}/{method}"] = {"folder": str(folder), "created": s["created"]}
     levels = sorted(
         {lv for lv, _ in summaries},
         key=lambda lv: summaries[(lv, "decoupled")]["level_settings"]["h_joint"],
@@ -78,13 +79,7 @@ def study(folders: list[Path]) -> dict:
         "scene": summaries[(levels[0], "decoupled")]["scene"],
         "levels": levels,
         "h_joint_m": list(h),
-        "sources": {
-            f"{lv}/{m}": {"folder": str(f), "created": summaries[(lv, m)]["created"]}
-            for f in folders
-            for lv, m in summaries
-            if (f / f"{m}_summary.json").is_file()
-            and json.loads((f / f"{m}_summary.json").read_text())["level"] == lv
-        },
+        "sources": sources,
         "converged_gci": CONVERGED_GCI,
         "settled_change": SETTLED_CHANGE,
         "methods": {},
@@ -128,7 +123,7 @@ def plot(data: dict, path: Path) -> None:
     """Per output: its value at the three levels against the angle (decoupled), with the
     extrapolated value where the convergence is monotone; one scale per panel."""
     rows = data["methods"]["decoupled"]
-    with plt.rc_context({"font.size": 7, "axes.titlesize": 7, "legend.fontsize": 6}):
+    with plt.rc_context(PRINT_STYLE):
         fig, axes = plt.subplots(2, 4, figsize=(7.0, 3.8))
         for ax, (name, (label, unit, factor)) in zip(axes.flat, OUTPUTS.items(), strict=True):
             per = rows[name]["per_angle"]

@@ -228,6 +228,17 @@ def _report_petsc_options(recorder, options: dict, unused: list[str] | None, com
         )
 
 
+def _new_folder(out: Path, command: str, comm: MPI.Comm) -> None:
+    """Create ``out`` and its parents (collective); SceneError if it exists already."""
+    if comm.allreduce(out.exists(), op=MPI.LOR):
+        raise SceneError(f"--out {out}: exists already (a {command} writes a new folder)")
+    _make_parent(out, comm)
+    comm.Barrier()
+    if comm.rank == 0:
+        out.mkdir()
+    comm.Barrier()
+
+
 def study(
     scene: Scene | str,
     settings: list[str],
@@ -254,6 +265,7 @@ def study(
         SceneError: A malformed setting, an unknown key, a bad value, or ``out`` exists.
     """
     from shoulder_fem import studies as st
+    from shoulder_fem.io.output import variant_folder
 
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
@@ -263,16 +275,10 @@ def study(
     scene.level(level)
     variants = st.plan(scene, settings)
     out = Path(out)
-    if comm.allreduce(out.exists(), op=MPI.LOR):
-        raise SceneError(f"--out {out}: exists already (a study writes a new folder)")
-    _make_parent(out, comm)
-    comm.Barrier()
-    if comm.rank == 0:
-        out.mkdir()
-    comm.Barrier()
+    _new_folder(out, "study", comm)
     rows = []
     for i, (values, scene_v) in enumerate(variants):
-        name = st.folder_name(i, values)
+        name = variant_folder(i, values)
         logger.info("study: variant %d of %d: %s", i + 1, len(variants), ", ".join(values))
         try:
             result = run(scene_v, method, level, out / name, comm)
@@ -323,21 +329,17 @@ def sweep(
     """
     from shoulder_fem.families.shoulder import sweep as sw
     from shoulder_fem.families.shoulder.model import reuse_meshes
+    from shoulder_fem.io.output import variant_folder
 
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
     source, out = Path(source).resolve(), Path(out)
     base, level, variants = sw.plan(scene, source, settings)
-    if comm.allreduce(out.exists(), op=MPI.LOR):
-        raise SceneError(f"--out {out}: exists already (a sweep writes a new folder)")
-    comm.Barrier()
-    if comm.rank == 0:
-        out.mkdir(parents=True)
-    comm.Barrier()
+    _new_folder(out, "sweep", comm)
     rows = []
     with reuse_meshes(source):  # the source's scapula (or one meshing) for every variant
         for i, variant in enumerate(variants):
-            name = sw.folder_name(i, variant)
+            name = variant_folder(i, variant)
             logger.info("sweep: variant %d of %d: %s", i + 1, len(variants), ", ".join(variant))
             scene_v = base.with_overrides(variant)
             result = run(scene_v, "decoupled", level, out / name, comm, part1_from=source)

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import itertools
 import logging
-import re
 from pathlib import Path
 
 from shoulder_fem.scene import Scene, SceneError
 
-__all__ = ["PLOTTED", "folder_name", "plan", "row", "write_study"]
+__all__ = ["PLOTTED", "plan", "row", "write_study"]
 
 logger = logging.getLogger(__name__)
 
@@ -61,11 +60,6 @@ def plan(scene: Scene, settings: list[str]) -> list[tuple[list[str], Scene]]:
     return variants
 
 
-def folder_name(i: int, values: list[str]) -> str:
-    """The run folder of variant ``i``: its number and its ``key=value`` list, file-safe."""
-    return f"{i:02d}_" + re.sub(r"[^A-Za-z0-9_=.+-]+", "-", ",".join(values))[:80]
-
-
 def row(values: list[str], name: str, summary: dict) -> dict:
     """One variant's values, outcome, cost and series (SI) from its ``summary.json``."""
     res = summary.get("resources", {})
@@ -95,7 +89,7 @@ def _plot(data: dict, path: Path) -> None:
     Sized for a journal's double column (7 in), a variant that stopped short dashed; the
     points are the output angles, joined by straight lines.
     """
-    from shoulder_fem.io.plots import plt
+    from shoulder_fem.io.plots import PRINT_STYLE, plt
 
     rows = data["variants"]
     names = [n for n in PLOTTED if any(n in r["series"] for r in rows)]
@@ -105,10 +99,6 @@ def _plot(data: dict, path: Path) -> None:
         return
     with plt.rc_context(PRINT_STYLE):
         _draw(data, rows, names, path)
-
-
-#: Font sizes that print at a journal's double column (7 in wide).
-PRINT_STYLE = {"font.size": 7, "axes.titlesize": 7, "legend.fontsize": 6}
 
 
 def _draw(data: dict, rows: list, names: list, path: Path) -> None:

@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import os
+import re
 import secrets
 import shutil
 import socket
@@ -141,6 +142,11 @@ def atomic_write_bytes(path: str | os.PathLike[str], write: Callable[[BinaryIO],
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write UTF-8 text atomically (see :func:`atomic_write_bytes`)."""
     atomic_write_bytes(path, lambda f: f.write(text.encode("utf-8")))
+
+
+def variant_folder(i: int, values: list[str]) -> str:
+    """The run folder of a sweep's or a study's variant ``i``: its number and values, file-safe."""
+    return f"{i:02d}_" + re.sub(r"[^A-Za-z0-9_=.+-]+", "-", ",".join(values))[:80]
 
 
 def atomic_write_json(path: str | os.PathLike[str], data: Any) -> None:

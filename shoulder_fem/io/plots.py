@@ -15,6 +15,10 @@ from shoulder_fem.io.output import atomic_write_bytes
 METHOD_STYLE = {"coupled": dict(color="C0", lw=2.0), "decoupled": dict(color="C3", lw=1.2, ls="--")}
 
 
+#: Font sizes of figures that print at a journal's double column (7 in): plt.rc_context(it).
+PRINT_STYLE = {"font.size": 7, "axes.titlesize": 7, "legend.fontsize": 6}
+
+
 def save_figure(fig, path: Path, vector: bool = False) -> Path:
     """Write a figure as PNG atomically (:func:`atomic_write_bytes`) and close it.
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import re
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from shoulder_fem.families.shoulder.report.metrics import GLENOID_REGION
 from shoulder_fem.families.shoulder.reuse import PART2_KEYS, check_source, read_source
 from shoulder_fem.scene import Scene, SceneError
 
-__all__ = ["folder_name", "glenoid_von_mises", "plan", "variant_row", "write_sweep"]
+__all__ = ["glenoid_von_mises", "plan", "variant_row", "write_sweep"]
 
 logger = logging.getLogger(__name__)
 
@@ -80,12 +79,6 @@ def recorded_values(scene: Scene, recorded: dict) -> dict:
     """
     values = recorded.get("parameters", {})
     return {k: v for k, v in values.items() if k in scene.parameters and v != scene[k]}
-
-
-def folder_name(i: int, variant: list[str]) -> str:
-    """The run folder of variant ``i``: its number and its ``key=value`` list, file-safe."""
-    text = ",".join(variant)
-    return f"{i:02d}_" + re.sub(r"[^A-Za-z0-9_=.+-]+", "-", text)[:80]
 
 
 def write_sweep(data: dict, out: Path) -> None:

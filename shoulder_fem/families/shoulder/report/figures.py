@@ -27,7 +27,7 @@ from shoulder_fem.families.shoulder.report.geometry import (
     glenoid_plane_coordinates,
     slice_tetrahedra,
 )
-from shoulder_fem.io.plots import METHOD_STYLE, save_figure
+from shoulder_fem.io.plots import METHOD_STYLE, PRINT_STYLE, save_figure
 
 REL_ERROR_FLOOR = 0.05
 """Relative von Mises errors are drawn for the vertices above this share of the coupled maximum
@@ -104,10 +104,6 @@ def _glenoid_triangulation(xy: np.ndarray) -> mtri.Triangulation | None:
         mask |= peel
     tri.set_mask(mask)
     return tri
-
-
-#: Font sizes of the report's figures: they print at a journal's double column (7 in).
-PRINT_STYLE = {"font.size": 7, "axes.titlesize": 7, "legend.fontsize": 6}
 
 
 def _glenoid_views(runs: dict[str, RunData], angles: list[float]) -> tuple[dict, float]:
